@@ -1,0 +1,7 @@
+"""``python -m topomatch``."""
+
+import sys
+
+from topomatch.cli import main
+
+sys.exit(main())

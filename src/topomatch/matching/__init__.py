@@ -1,0 +1,33 @@
+"""Matching methods behind one interface, and the name -> class table used by the CLI.
+
+The table is an explicit dictionary: adding a method means adding a line here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from topomatch.matching.base import Correspondence, Matcher, NotFittedError
+from topomatch.matching.descriptor_nn import DescriptorNNMatcher
+from topomatch.matching.oracle import OracleMatcher
+
+__all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
+
+MATCHERS: dict[str, type[Matcher]] = {
+    "oracle": OracleMatcher,
+    "descriptor-nn": DescriptorNNMatcher,
+}
+
+DEFAULT_METHOD = "descriptor-nn"
+
+
+def make_matcher(name: str, **params: Any) -> Matcher:
+    """Build the matcher registered as ``name`` with hyperparameters ``params``."""
+    try:
+        cls = MATCHERS[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r}; available: {', '.join(MATCHERS)}") from None
+    try:
+        return cls(**params)
+    except TypeError as err:
+        raise ValueError(f"bad hyperparameters for {name!r}: {err}") from None

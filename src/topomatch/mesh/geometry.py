@@ -1,0 +1,200 @@
+"""Geometry of triangle meshes as functions on arrays ``(vertices, faces)``.
+
+Every function takes ``vertices`` of shape ``(n_vertices, 3)`` and ``faces`` of shape
+``(n_faces, 3)`` and works on any triangle soup: non-manifold edges, boundaries,
+several components and unreferenced vertices are all allowed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+
+from topomatch.typing import BoolArray, FloatArray, IndexArray
+
+__all__ = [
+    "boundary_edges",
+    "boundary_loops",
+    "connected_components",
+    "edge_graph",
+    "edge_lengths",
+    "edges_with_counts",
+    "euler_characteristic",
+    "face_areas",
+    "face_normals",
+    "non_manifold_edges",
+    "vertex_areas",
+    "vertex_normals",
+]
+
+
+def _cross(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    v0, v1, v2 = (vertices[faces[:, i]] for i in range(3))
+    return np.cross(v1 - v0, v2 - v0)
+
+
+def face_areas(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    """Triangle areas, shape (n_faces,)."""
+    return 0.5 * np.linalg.norm(_cross(vertices, faces), axis=1)
+
+
+def face_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    """Unit face normals (right-hand rule), shape (n_faces, 3); zero for degenerate faces."""
+    c = _cross(vertices, faces)
+    n = np.linalg.norm(c, axis=1, keepdims=True)
+    return np.divide(c, n, out=np.zeros_like(c), where=n > 0)
+
+
+def vertex_areas(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    """Barycentric lumped vertex areas (a third of each incident face), shape (n_vertices,)."""
+    a = face_areas(vertices, faces) / 3.0
+    out = np.zeros(len(vertices))
+    for i in range(3):
+        np.add.at(out, faces[:, i], a)
+    return out
+
+
+def vertex_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    """Area-weighted unit vertex normals, shape (n_vertices, 3); zero on isolated vertices."""
+    c = _cross(vertices, faces)
+    out = np.zeros((len(vertices), 3))
+    for i in range(3):
+        np.add.at(out, faces[:, i], c)
+    n = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, n, out=np.zeros_like(out), where=n > 0)
+
+
+def edges_with_counts(faces: IndexArray) -> tuple[IndexArray, IndexArray]:
+    """Unique undirected edges and how many faces hold each.
+
+    Returns
+    -------
+    edges : ndarray, shape (n_edges, 2)
+        Sorted vertex pairs ``(i, j)`` with ``i < j``.
+    counts : ndarray, shape (n_edges,)
+        Number of incident faces: 1 on a boundary, 2 inside a manifold, 3+ non-manifold.
+    """
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.sort(e, axis=1)
+    edges, counts = np.unique(e, axis=0, return_counts=True)
+    return edges.astype(np.int64), counts.astype(np.int64)
+
+
+def boundary_edges(faces: IndexArray) -> IndexArray:
+    """Edges held by exactly one face, oriented as in that face, shape (n_boundary, 2)."""
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(directed, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return directed[counts[inv.ravel()] == 1]
+
+
+def non_manifold_edges(faces: IndexArray) -> IndexArray:
+    """Edges held by three or more faces, shape (n, 2)."""
+    edges, counts = edges_with_counts(faces)
+    return edges[counts > 2]
+
+
+def boundary_loops(faces: IndexArray) -> list[IndexArray]:
+    """Boundary loops as ordered vertex cycles.
+
+    Boundary edges are chained by their (oriented) successor. Where a boundary vertex
+    has several outgoing boundary edges (a pinch), chains are split there so that
+    every boundary edge lies in exactly one returned loop.
+
+    Returns
+    -------
+    loops : list of ndarray
+        Each of shape (loop_length,), longest first.
+    """
+    be = boundary_edges(faces)
+    if len(be) == 0:
+        return []
+    unused = np.ones(len(be), dtype=bool)
+    out_edges: dict[int, list[int]] = {}
+    for k, (a, _) in enumerate(be):
+        out_edges.setdefault(int(a), []).append(k)
+    loops: list[IndexArray] = []
+    for start in range(len(be)):
+        if not unused[start]:
+            continue
+        loop = []
+        k = start
+        while unused[k]:
+            unused[k] = False
+            a, b = be[k]
+            loop.append(int(a))
+            nxt = [j for j in out_edges.get(int(b), []) if unused[j]]
+            if not nxt:
+                break
+            k = nxt[0]
+        loops.append(np.asarray(loop, dtype=np.int64))
+    loops.sort(key=len, reverse=True)
+    return loops
+
+
+def edge_lengths(vertices: FloatArray, edges: IndexArray) -> FloatArray:
+    """Euclidean lengths of ``edges`` (shape (n_edges, 2)), shape (n_edges,)."""
+    return np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+
+
+def edge_graph(vertices: FloatArray, faces: IndexArray) -> sparse.csr_matrix:
+    """Symmetric sparse adjacency of the edge graph weighted by Euclidean edge length.
+
+    Returns
+    -------
+    graph : scipy.sparse.csr_matrix, shape (n_vertices, n_vertices)
+    """
+    edges, _ = edges_with_counts(faces)
+    w = edge_lengths(vertices, edges)
+    keep = w > 0  # zero-length edges would be dropped by scipy anyway; merge their ends
+    n = len(vertices)
+    i = np.concatenate([edges[keep, 0], edges[keep, 1]])
+    j = np.concatenate([edges[keep, 1], edges[keep, 0]])
+    g = sparse.csr_matrix((np.concatenate([w[keep], w[keep]]), (i, j)), shape=(n, n))
+    if not np.all(keep):
+        tiny = np.full(int((~keep).sum()), 1e-12 * max(float(w.max(initial=0.0)), 1.0))
+        g = g + sparse.csr_matrix(
+            (np.concatenate([tiny, tiny]), (np.concatenate([edges[~keep, 0], edges[~keep, 1]]), np.concatenate([edges[~keep, 1], edges[~keep, 0]]))),
+            shape=(n, n),
+        )
+    return g.tocsr()
+
+
+def connected_components(n_vertices: int, faces: IndexArray) -> tuple[int, IndexArray]:
+    """Face-connected components.
+
+    Returns
+    -------
+    n_components : int
+        Number of components among *referenced* vertices.
+    labels : ndarray, shape (n_vertices,)
+        Component of each vertex; ``-1`` for vertices in no face.
+    """
+    i = np.concatenate([faces[:, 0], faces[:, 1]])
+    j = np.concatenate([faces[:, 1], faces[:, 2]])
+    a = sparse.csr_matrix((np.ones(len(i)), (i, j)), shape=(n_vertices, n_vertices))
+    _, labels = csgraph.connected_components(a, directed=False)
+    used = np.zeros(n_vertices, dtype=bool)
+    used[faces.ravel()] = True
+    labels = labels.astype(np.int64)
+    # relabel referenced components 0..c-1 in order of first appearance
+    uniq, first = np.unique(labels[used], return_index=True)
+    order = uniq[np.argsort(first)]
+    remap = np.full(labels.max() + 1 if labels.size else 0, -1, dtype=np.int64)
+    remap[order] = np.arange(len(order))
+    out = np.where(used, remap[labels], -1)
+    return len(order), out
+
+
+def euler_characteristic(n_vertices_used: int, faces: IndexArray) -> int:
+    """Euler characteristic ``V - E + F`` counting referenced vertices only."""
+    edges, _ = edges_with_counts(faces)
+    return int(n_vertices_used - len(edges) + len(faces))
+
+
+def referenced_vertices(n_vertices: int, faces: IndexArray) -> BoolArray:
+    """Mask of vertices that belong to at least one face, shape (n_vertices,)."""
+    used = np.zeros(n_vertices, dtype=bool)
+    used[faces.ravel()] = True
+    return used

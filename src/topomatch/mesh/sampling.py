@@ -1,0 +1,69 @@
+"""Farthest-point sampling."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from topomatch._validation import check_random_state
+from topomatch.typing import FloatArray, IndexArray, RandomState
+
+__all__ = ["farthest_point_sampling"]
+
+
+def farthest_point_sampling(
+    n_samples: int,
+    *,
+    points: FloatArray | None = None,
+    distance_fn: Callable[[int], FloatArray] | None = None,
+    n_points: int | None = None,
+    first: int | None = None,
+    random_state: RandomState = None,
+) -> IndexArray:
+    """Greedy farthest-point sampling in Euclidean space or under any metric.
+
+    Parameters
+    ----------
+    n_samples : int
+        Number of samples.
+    points : ndarray, shape (n_points, d), optional
+        Points in a Euclidean space (3D positions, a spectral embedding...).
+    distance_fn : callable, optional
+        ``distance_fn(i)`` returns the distances from point ``i`` to all points, shape
+        (n_points,), e.g. a geodesic solver row. Give ``n_points`` with it.
+    first : int, optional
+        First sample; drawn with ``random_state`` when omitted.
+    random_state : int, Generator or None
+
+    Returns
+    -------
+    ndarray, shape (n_samples,)
+        Sample indices in selection order.
+    """
+    if (points is None) == (distance_fn is None):
+        raise ValueError("give exactly one of points or distance_fn")
+    if points is not None:
+        pts = np.asarray(points, dtype=np.float64)
+        n = len(pts)
+
+        def dist(i: int) -> FloatArray:
+            return np.linalg.norm(pts - pts[i], axis=1)
+
+    else:
+        if n_points is None:
+            raise ValueError("n_points is required with distance_fn")
+        n = n_points
+        dist = distance_fn  # type: ignore[assignment]
+    if not 1 <= n_samples <= n:
+        raise ValueError(f"n_samples must lie in [1, {n}], got {n_samples}")
+    rng = check_random_state(random_state)
+    cur = int(rng.integers(n)) if first is None else int(first)
+    out = np.empty(n_samples, dtype=np.int64)
+    dmin = np.full(n, np.inf)
+    for k in range(n_samples):
+        out[k] = cur
+        dmin = np.minimum(dmin, dist(cur))
+        dmin[out[: k + 1]] = -1.0
+        cur = int(np.argmax(dmin))
+    return out
