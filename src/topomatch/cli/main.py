@@ -128,7 +128,7 @@ def _print_table(summary: dict, run: Path, labels: dict[str, str]) -> None:
 def _labels(methods: Sequence[str]) -> dict[str, str]:
     from topomatch.matching import MATCHERS
 
-    return {m: f"{m} (uses ground truth)" for m in methods if m in MATCHERS and MATCHERS[m].uses_ground_truth}
+    return {m: f"{m} ({MATCHERS[m].ground_truth_note})" for m in methods if m in MATCHERS and MATCHERS[m].uses_ground_truth}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

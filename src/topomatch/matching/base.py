@@ -65,8 +65,11 @@ class Matcher:
     name: ClassVar[str] = ""
     #: True when ``fit`` must be called with training shapes before ``match``.
     requires_fit: ClassVar[bool] = False
-    #: True when the method uses ground truth at test time (the oracle); reports flag it.
+    #: True when the method uses ground truth at test time (the oracle, landmark
+    #: variants); ``fit`` then receives every shape, and reports flag the row.
     uses_ground_truth: ClassVar[bool] = False
+    #: How reports describe that use, e.g. "uses 4 ground-truth landmarks".
+    ground_truth_note: ClassVar[str] = "uses ground truth"
 
     def fit(self, shapes: Sequence[Shape] = (), /) -> Matcher:
         """Learn from training shapes with ground truth; axiomatic matchers do nothing.
