@@ -109,7 +109,7 @@ def laplacian_eigenbasis(
     Shift-invert Lanczos (ARPACK ``eigsh``) around ``-shift`` with the operator
     ``(L + shift M)^{-1}`` applied by a sparse Cholesky factorisation. The start vector is
     fixed and eigenvector signs are normalised (largest-magnitude entry positive), so the
-    result is reproducible. Vertices with zero mass (in no face) are left out of the
+    result is reproducible. Vertices with (numerically) zero mass, i.e. in no face, are left out of the
     solve and get zero in every eigenvector.
 
     Parameters
@@ -129,7 +129,7 @@ def laplacian_eigenbasis(
     """
     mass = np.asarray(M.diagonal(), dtype=np.float64)
     n_all = len(mass)
-    used = mass > 0
+    used = mass > 1e-12 * float(mass.max(initial=0.0))  # vertices in no face carry (almost) no mass
     n = int(used.sum())
     if not 1 <= k < n:
         raise ValueError(f"k must satisfy 1 <= k < n_vertices ({n}), got {k}")
