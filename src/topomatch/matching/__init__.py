@@ -9,12 +9,15 @@ from typing import Any
 
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
 from topomatch.matching.descriptor_nn import DescriptorNNMatcher
-from topomatch.matching.oracle import OracleMatcher
+from topomatch.matching.oracle import MirroredOracleMatcher, OracleMatcher
+from topomatch.matching.random_map import RandomMatcher
 
 __all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
 
 MATCHERS: dict[str, type[Matcher]] = {
     "oracle": OracleMatcher,
+    "oracle-mirror": MirroredOracleMatcher,
+    "random": RandomMatcher,
     "descriptor-nn": DescriptorNNMatcher,
 }
 
