@@ -96,8 +96,9 @@ def viewer_data(series: list[Series], protocols: dict[str, str], *, max_bytes: i
     protocols : dict
         Group -> the protocol whose pairs the viewer shows.
     max_bytes : int
-        Budget for the embedded data. Pairs are added best and worst first, then in
-        order, while the budget lasts; meshes are never decimated. Pairs left out are
+        Budget for the embedded data. The best and worst pair of every method are
+        always embedded; the other pairs follow in order while the budget lasts.
+        Meshes are never decimated. Pairs left out are
         counted in :attr:`ViewerData.omitted` (and said in the page).
 
     Returns
@@ -171,8 +172,8 @@ def viewer_data(series: list[Series], protocols: dict[str, str], *, max_bytes: i
                 }
                 size += _blob_size(entry["map"]) + _blob_size(entry["errors"])
                 add_pairs.append((k, entry))
-            if kept and out.bytes + size > max_bytes:
-                continue
+            if pid not in firsts and out.bytes + size > max_bytes:
+                continue  # the best and worst pairs of every method are always in
             shapes.update(add_shapes)
             for k, entry in add_pairs:
                 methods[k]["pairs"][pid] = entry

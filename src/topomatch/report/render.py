@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from topomatch.typing import FloatArray, IndexArray
+from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["View", "project", "render_mesh", "shade_vertices"]
+__all__ = ["View", "project", "render_mesh", "save_rendering", "shade_vertices"]
 
 logger = logging.getLogger(__name__)
 
@@ -174,4 +174,49 @@ def render_mesh(ax: Any, vertices: FloatArray, faces: IndexArray, vertex_colors:
     ax.set_axis_off()
     if title:
         ax.set_title(title, fontsize=8)
+    return time.perf_counter() - t0
+
+
+def save_rendering(
+    path: PathType,
+    vertices: FloatArray,
+    faces: IndexArray,
+    vertex_colors: FloatArray,
+    view: View | None = None,
+    *,
+    size: tuple[float, float] = (3.0, 4.0),
+    dpi: int = 120,
+    title: str | None = None,
+) -> float:
+    """Render one mesh to a PNG file.
+
+    Parameters
+    ----------
+    path : path
+    vertices : ndarray, shape (n_vertices, 3)
+    faces : ndarray, shape (n_faces, 3)
+    vertex_colors : ndarray, shape (n_vertices, 3)
+    view : View, optional
+    size : (float, float)
+        Figure size in inches.
+    dpi : int
+    title : str, optional
+
+    Returns
+    -------
+    float
+        Seconds for the whole rendering (preparation and writing the file).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    t0 = time.perf_counter()
+    fig, ax = plt.subplots(figsize=size, dpi=dpi)
+    try:
+        render_mesh(ax, vertices, faces, vertex_colors, view, title=title)
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
     return time.perf_counter() - t0
