@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from topomatch.report.colors import position_colors, transfer_colors
-from topomatch.report.render import View, render_mesh
+from topomatch.report.render import View, projected_size, render_mesh
 from topomatch.report.results import Series
 from topomatch.typing import FloatArray
 
@@ -180,10 +180,13 @@ def plot_pairs(series: list[Series], protocol: str, group: str, path: Path, *, v
     if not rows:
         return None, []
     view = view or View()
-    fig, axes = plt.subplots(len(rows), 4, figsize=(9.6, 3.4 * len(rows)), squeeze=False, dpi=dpi)
+    fig, axes = plt.subplots(len(rows), 4, figsize=(11.0, 3.5 * len(rows)), squeeze=False, dpi=dpi)
     prep: list[float] = []
     for i, (s, picks) in enumerate(rows):
         coll = s.run.collection
+        names = [n for pk in picks for n in pk.pair.split("-", 1)]
+        sizes = np.array([projected_size(coll[n].mesh.vertices, view) for n in names])
+        size = (float(sizes[:, 0].max()), float(sizes[:, 1].max()))  # one scale per row
         for j, pk in enumerate(picks):
             target_name, source_name = pk.pair.split("-", 1)
             p2p = s.run.load_map(s.method, pk.pair)
@@ -195,8 +198,8 @@ def plot_pairs(series: list[Series], protocol: str, group: str, path: Path, *, v
                 continue
             src_rgb, tgt_rgb = transfer_colors(p2p, position_colors(src.vertices), fade_unhit=False)
             head = f"{pk.kind} {pk.pair} (AUC {pk.auc:.3f})"
-            prep.append(render_mesh(axes[i][2 * j], src.vertices, src.faces, src_rgb, view, title=f"{head}\nsource {source_name}"))
-            prep.append(render_mesh(axes[i][2 * j + 1], tgt.vertices, tgt.faces, tgt_rgb, view, title=f"target {target_name}"))
+            prep.append(render_mesh(axes[i][2 * j], src.vertices, src.faces, src_rgb, view, title=f"{head}\nsource {source_name}", size=size))
+            prep.append(render_mesh(axes[i][2 * j + 1], tgt.vertices, tgt.faces, tgt_rgb, view, title=f"target {target_name}", size=size))
         if len(picks) == 1:
             for ax in axes[i][2:]:
                 ax.set_axis_off()

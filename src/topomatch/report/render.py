@@ -21,7 +21,7 @@ import numpy as np
 
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["View", "project", "render_mesh", "save_rendering", "shade_vertices"]
+__all__ = ["View", "project", "projected_size", "render_mesh", "save_rendering", "shade_vertices"]
 
 logger = logging.getLogger(__name__)
 
@@ -130,7 +130,23 @@ def _gouraud_artist(triangles: FloatArray, colors: FloatArray) -> Any:
     return GouraudTriangles()
 
 
-def render_mesh(ax: Any, vertices: FloatArray, faces: IndexArray, vertex_colors: FloatArray, view: View | None = None, *, title: str | None = None) -> float:
+def projected_size(vertices: FloatArray, view: View | None = None) -> tuple[float, float]:
+    """Return the width and height of the mesh's projected bounding box (for a common scale)."""
+    xy, _ = project(vertices, view or View())
+    w, h = xy.max(axis=0) - xy.min(axis=0)
+    return float(w), float(h)
+
+
+def render_mesh(
+    ax: Any,
+    vertices: FloatArray,
+    faces: IndexArray,
+    vertex_colors: FloatArray,
+    view: View | None = None,
+    *,
+    title: str | None = None,
+    size: tuple[float, float] | None = None,
+) -> float:
     """Draw a mesh into a matplotlib ``Axes`` (2-D, aspect equal, no frame).
 
     Triangles are projected orthographically, sorted back to front by mean depth and
@@ -146,6 +162,9 @@ def render_mesh(ax: Any, vertices: FloatArray, faces: IndexArray, vertex_colors:
         RGB in [0, 1], before shading.
     view : View, optional
     title : str, optional
+    size : (float, float), optional
+        Width and height of the window shown, in mesh units, centred on the mesh (give
+        the same value to several axes to draw them at one scale); default: fit the mesh.
 
     Returns
     -------
@@ -167,9 +186,15 @@ def render_mesh(ax: Any, vertices: FloatArray, faces: IndexArray, vertex_colors:
     rgba = np.concatenate([shaded, np.ones((len(v), 1))], axis=1)[fo]
     ax.add_artist(_gouraud_artist(xy[fo], rgba))
     lo, hi = xy.min(axis=0), xy.max(axis=0)
-    pad = 0.02 * float(np.max(hi - lo))
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    if size is None:
+        pad = 0.02 * float(np.max(hi - lo))
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    else:
+        c = (lo + hi) / 2
+        half = 0.51 * np.maximum(np.asarray(size, dtype=np.float64), hi - lo)
+        ax.set_xlim(c[0] - half[0], c[0] + half[0])
+        ax.set_ylim(c[1] - half[1], c[1] + half[1])
     ax.set_aspect("equal")
     ax.set_axis_off()
     if title:
