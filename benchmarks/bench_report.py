@@ -71,6 +71,9 @@ def bench_rendering(data: str | None, repeat: int) -> None:
         shapes.append(("builtin syn05", builtin_benchmark()["syn05"].mesh))
     view = View()
     with tempfile.TemporaryDirectory() as tmp:
+        m0 = shapes[0][1]  # warm-up: matplotlib import, fonts, first figure
+        save_rendering(Path(tmp, "w.png"), m0.vertices, m0.faces, position_colors(m0.vertices), view)
+        _polycollection_png(Path(tmp, "w.png"), np.asarray(m0.vertices), np.asarray(m0.faces), position_colors(m0.vertices), view)
         for label, mesh in shapes:
             v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
             col = position_colors(v)

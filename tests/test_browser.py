@@ -60,6 +60,7 @@ def browser_page(request, tmp_path_factory):
     exe = _chromium()  # skip before building anything when there is no browser
     sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed (pip install playwright)")
     html = request.getfixturevalue("html")
+    run = request.getfixturevalue("report_run")
     profile = tmp_path_factory.mktemp("chromium-profile")
     problems: list[str] = []
     with sync_api.sync_playwright() as p:
@@ -75,7 +76,7 @@ def browser_page(request, tmp_path_factory):
         page.goto(html.resolve().as_uri())
         page.wait_for_function("window.topomatchViewer && (window.topomatchViewer.ready || window.topomatchViewer.error)", timeout=60_000)
         page.locator("#viewer-canvas").scroll_into_view_if_needed()
-        yield page, problems
+        yield page, problems, run
         ctx.close()
 
 
@@ -91,10 +92,11 @@ def _mesh_mask(img: np.ndarray) -> np.ndarray:
     return np.abs(img - BACKGROUND).max(axis=2) > 30
 
 
-def test_report_opens_draws_and_shows_the_match(browser_page, report_run):
+def test_report_opens_draws_and_shows_the_match(browser_page):
+    # the run is reached through browser_page so that nothing is built when the test skips
     from topomatch.evaluation.rundir import RunDir
 
-    page, problems = browser_page
+    page, problems, report_run = browser_page
     assert page.evaluate("window.topomatchViewer.error") is None
     assert page.title().startswith("topomatch report")
 

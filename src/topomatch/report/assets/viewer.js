@@ -462,12 +462,12 @@ void main() {
   }
   function extreme(best) {
     const m = method();
-    let pick = null, val = best ? -Infinity : Infinity;
+    let chosen = null, val = best ? -Infinity : Infinity;
     for (const [p, e] of Object.entries(m.pairs)) {
       if (e.auc == null) continue;
-      if (best ? e.auc > val : e.auc < val) { val = e.auc; pick = p; }
+      if (best ? e.auc > val : e.auc < val) { val = e.auc; chosen = p; }
     }
-    return pick;
+    return chosen;
   }
 
   let loading = Promise.resolve();
