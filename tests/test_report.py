@@ -50,10 +50,11 @@ def test_plotting_libraries_load_only_when_a_report_is_made(report_run, tmp_path
         "from topomatch.report import build_report\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('matplotlib', 'plotly', 'PIL')))\n"
         f"build_report([{str(report_run)!r}], {str(tmp_path / 'r')!r}, renderings=False, html=False)\n"
-        "print('matplotlib' in sys.modules)"  # the first check could fail: making a report does import it
+        "print('matplotlib' in sys.modules)\n"  # the first check could fail: making a report does import it
+        "print('matplotlib.pyplot' in sys.modules)"  # but not pyplot: no global state, no backend switch
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env={"PYTHONPATH": str(ROOT / "src")})
-    assert out.stdout.split("\n")[:2] == ["[]", "True"]
+    assert out.stdout.split("\n")[:3] == ["[]", "True", "False"]
 
 
 # -- what gets written ------------------------------------------------------------------------

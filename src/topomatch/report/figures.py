@@ -2,7 +2,8 @@
 
 Every function reads :class:`~topomatch.report.results.Series` (stored scores and maps)
 and writes a PNG; nothing is matched or scored again. matplotlib is imported inside the
-functions (Agg backend), never at module import.
+functions, never at module import, and used without pyplot (no global state, no backend
+switch in the caller's session).
 """
 
 from __future__ import annotations
@@ -25,13 +26,12 @@ __all__ = ["PairPick", "best_worst", "plot_breakdown", "plot_curves", "plot_pair
 logger = logging.getLogger(__name__)
 
 
-def _pyplot() -> Any:
-    import matplotlib
+def _figure(nrows: int, ncols: int, figsize: tuple[float, float], dpi: int) -> tuple[Any, Any]:
+    """Make a figure and its axes grid without pyplot: no global state, no backend switch."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig = Figure(figsize=figsize, dpi=dpi)
+    return fig, fig.subplots(nrows, ncols, squeeze=False)
 
 
 def _groups(series: list[Series]) -> list[str]:
@@ -62,11 +62,10 @@ def plot_curves(series: list[Series], protocol: str, path: Path) -> Path | None:
     Path or None
         ``None`` when no series has scores under ``protocol``.
     """
-    plt = _pyplot()
     groups = [g for g in _groups(series) if any(s.group == g and s.run.pairs(protocol, s.method) for s in series)]
     if not groups:
         return None
-    fig, axes = plt.subplots(1, len(groups), figsize=(max(6.4, 5.2 * len(groups)), 4.2), squeeze=False, dpi=110)
+    fig, axes = _figure(1, len(groups), (max(6.4, 5.2 * len(groups)), 4.2), 110)
     for ax, g in zip(axes[0], groups):
         geos = set()
         for s in series:
@@ -85,7 +84,6 @@ def plot_curves(series: list[Series], protocol: str, path: Path) -> Path | None:
     fig.suptitle("Cumulative error curves, mean over pairs", fontsize=11)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -99,12 +97,11 @@ def plot_breakdown(series: list[Series], protocol: str, path: Path) -> Path | No
     Path or None
         ``None`` when no series has scores under ``protocol``.
     """
-    plt = _pyplot()
     groups = _groups(series)
     labels = list(dict.fromkeys(s.label for s in series if s.run.pairs(protocol, s.method)))
     if not labels:
         return None
-    fig, axes = plt.subplots(len(labels), len(groups), figsize=(max(6.4, 4.6 * len(groups)), 0.4 + 3.2 * len(labels)), squeeze=False, dpi=110)
+    fig, axes = _figure(len(labels), len(groups), (max(6.4, 4.6 * len(groups)), 0.4 + 3.2 * len(labels)), 110)
     for i, label in enumerate(labels):
         for j, g in enumerate(groups):
             ax = axes[i][j]
@@ -126,7 +123,6 @@ def plot_breakdown(series: list[Series], protocol: str, path: Path) -> Path | No
     fig.suptitle(f"Per-method breakdown ({protocol}): mean, best and worst pair", fontsize=11)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -174,13 +170,12 @@ def plot_pairs(series: list[Series], protocol: str, group: str, path: Path, *, v
     seconds : list of float
         Time of each mesh rendering (preparation plus its share of the final save).
     """
-    plt = _pyplot()
     rows = [(s, _picks(s, protocol)) for s in series if s.group == group]
     rows = [(s, p) for s, p in rows if p]
     if not rows:
         return None, []
     view = view or View()
-    fig, axes = plt.subplots(len(rows), 4, figsize=(11.0, 3.5 * len(rows)), squeeze=False, dpi=dpi)
+    fig, axes = _figure(len(rows), 4, (11.0, 3.5 * len(rows)), dpi)
     prep: list[float] = []
     for i, (s, picks) in enumerate(rows):
         coll = s.run.collection
@@ -210,6 +205,5 @@ def plot_pairs(series: list[Series], protocol: str, group: str, path: Path, *, v
     t0 = time.perf_counter()
     fig.savefig(path)
     save = time.perf_counter() - t0
-    plt.close(fig)
     n = max(len(prep), 1)
     return path, [p + save / n for p in prep]

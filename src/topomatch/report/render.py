@@ -1,4 +1,4 @@
-"""Headless mesh renderings with matplotlib (Agg): the track's Fig. 4 and 5.
+"""Headless mesh renderings with matplotlib (PNG through Agg): the track's Fig. 4 and 5.
 
 A mesh is projected orthographically, its triangles sorted back to front (painter's
 algorithm) and drawn in one call to the renderer's Gouraud-triangle primitive, with
@@ -232,16 +232,10 @@ def save_rendering(
     float
         Seconds for the whole rendering (preparation and writing the file).
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     t0 = time.perf_counter()
-    fig, ax = plt.subplots(figsize=size, dpi=dpi)
-    try:
-        render_mesh(ax, vertices, faces, vertex_colors, view, title=title)
-        fig.savefig(path)
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=size, dpi=dpi)
+    render_mesh(fig.add_subplot(), vertices, faces, vertex_colors, view, title=title)
+    fig.savefig(path)
     return time.perf_counter() - t0
