@@ -90,6 +90,13 @@ def _build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", required=True, metavar="MAP", help="output file (.txt one-based vertex map, .npy zero-based, or --format shrec16)")
     m.add_argument("--format", choices=["p2p", "shrec16", "npy"], help="default from the suffix (.npy -> npy, else p2p)")
 
+    r = sub.add_parser("report", help="figures, tables and the HTML report from run directories")
+    r.add_argument("runs", nargs="+", metavar="RUN", help="run directories (e.g. a low-res and a high-res run side by side)")
+    r.add_argument("--out", metavar="DIR", help="output folder (default: RUN/report for one run, else report-<time>)")
+    r.add_argument("--no-render", action="store_true", help="skip the mesh renderings (Fig. 4/5)")
+    r.add_argument("--no-html", action="store_true", help="skip report.html")
+    r.add_argument("--max-html-mb", type=float, default=60.0, help="budget for mesh and map data embedded in the HTML viewer")
+
     d = sub.add_parser("data", help="inspect the data")
     dsub = d.add_subparsers(dest="data_command", required=True)
     for name, help_ in (("info", "counts, topology and ground-truth coverage per shape"), ("check", "parse every file; exit 1 on any problem")):
@@ -239,6 +246,22 @@ def cmd_match(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from topomatch.report import build_report
+
+    runs = [Path(r) for r in args.runs]
+    out = Path(args.out) if args.out else (runs[0] / "report" if len(runs) == 1 else Path(f"report-{time.strftime('%Y%m%d-%H%M%S')}"))
+    t0 = time.perf_counter()
+    try:
+        path = build_report(runs, out, renderings=not args.no_render, html=not args.no_html, max_html_mb=args.max_html_mb)
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    sys.stdout.write((out / "table1.md").read_text())
+    print(f"report written to {out} in {time.perf_counter() - t0:.1f} s: {path}", file=sys.stderr)
+    return 0
+
+
 def cmd_data(args: argparse.Namespace) -> int:
     from topomatch.datasets.inspect import data_report
 
@@ -269,5 +292,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_match(args)
     if args.command == "data":
         return cmd_data(args)
+    if args.command == "report":
+        return cmd_report(args)
     parser.error(f"unknown command {args.command}")
     return 2
