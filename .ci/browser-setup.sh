@@ -23,7 +23,9 @@ if ! have_chromium; then
 fi
 have_chromium && echo "browser-setup: $( (chromium --version || chromium-browser --version) 2>/dev/null | head -1)"
 
-if ! "$PY" -c "import playwright" >/dev/null 2>&1; then
+# The project's "test" extra already brings playwright into the test environment; install
+# it here only when a Python is named explicitly (PYTHON=...).
+if [ -n "${PYTHON:-}" ] && ! "$PY" -c "import playwright" >/dev/null 2>&1; then
   echo "browser-setup: installing playwright (the Python driver only; it drives the system chromium)"
   "$PY" -m pip install -q "playwright>=1.45" || echo "browser-setup: pip install playwright failed; the browser test will skip"
 fi
