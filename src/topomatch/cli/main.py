@@ -119,17 +119,11 @@ def _enable_cache(disabled: bool) -> None:
         _cache.set_cache_dir(_cache.default_cache_dir())
 
 
-def _print_table(summary: dict, run: Path, labels: dict[str, str]) -> None:
-    from topomatch.evaluation.tables import method_rows, to_csv, to_latex, to_markdown
+def _print_table(summary: dict, labels: dict[str, str]) -> None:
+    """Print the results table (the report writes it to files as Markdown, CSV and LaTeX)."""
+    from topomatch.evaluation.tables import method_rows, to_markdown
 
-    rows = method_rows(summary, labels)
-    table = to_markdown(rows)
-    out = run / "report"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table.md").write_text(table)
-    (out / "table.csv").write_text(to_csv(rows))
-    (out / "table.tex").write_text(to_latex(rows))
-    sys.stdout.write(table)
+    sys.stdout.write(to_markdown(method_rows(summary, labels)))
 
 
 def _labels(methods: Sequence[str]) -> dict[str, str]:
@@ -167,7 +161,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _print_table(summary, out, _labels(methods))
+    _print_table(summary, _labels(methods))
     _report(out, say)
     say(f"run directory: {out}")
     return 0
@@ -207,7 +201,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _print_table(summary, out, {})
+    _print_table(summary, {})
     say(f"run directory: {out}")
     return 0
 
