@@ -18,7 +18,8 @@ def test_bench_builtin_prints_table(tmp_path, capsys, monkeypatch):
     assert "oracle (uses ground truth)" in out and "1.000" in out
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["methods"]["oracle"]["shrec16"]["auc_mean"] == 1.0
-    assert (tmp_path / "run" / "report" / "table.tex").is_file()
+    assert (tmp_path / "run" / "report" / "table1.tex").is_file()
+    assert (tmp_path / "run" / "report" / "report.html").is_file()
 
 
 def test_bench_rejects_bad_data_dir(tmp_path, capsys):
