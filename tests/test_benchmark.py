@@ -80,3 +80,12 @@ def test_config_validation():
         BenchmarkConfig(methods=["nope"]).validate()
     with pytest.raises(ValueError, match="dataset"):
         BenchmarkConfig(dataset="faust").validate()
+
+
+def test_dask_backend(tmp_path):
+    distributed = pytest.importorskip("dask.distributed", reason="dask is an optional extra: pip install 'topomatch[dask]'")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        cfg = BenchmarkConfig(methods=["oracle"], protocols=["shrec16"])
+        s = run_benchmark(cfg, tmp_path / "d", progress=False, dask_scheduler=cluster.scheduler_address)
+    assert s["methods"]["oracle"]["shrec16"]["auc_mean"] == 1.0
+    assert s["methods"]["oracle"]["shrec16"]["n_pairs"] == 12

@@ -58,6 +58,7 @@ def _build_parser() -> argparse.ArgumentParser:
     b.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="hyperparameter (repeatable)")
     b.add_argument("--out", metavar="RUN", help="run directory (default: runs/<dataset>-<time>)")
     b.add_argument("--jobs", type=int, default=1, help="worker processes")
+    b.add_argument("--dask", metavar="SCHEDULER", help="run on an existing Dask cluster (tcp://host:8786; needs topomatch[dask])")
     b.add_argument("--seed", type=int, default=0, help="random_state for every method")
     sym = b.add_mutually_exclusive_group()
     sym.add_argument("--symmetric", dest="symmetric", action="store_true", default=None, help="accept symmetric solutions")
@@ -157,7 +158,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     _enable_cache(args.no_cache)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     try:
-        summary = run_benchmark(config, out, progress=not args.quiet and sys.stderr.isatty(), retry_failed=args.retry_failed, on_event=say)
+        summary = run_benchmark(
+            config, out, progress=not args.quiet and sys.stderr.isatty(), retry_failed=args.retry_failed, on_event=say, dask_scheduler=args.dask
+        )
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

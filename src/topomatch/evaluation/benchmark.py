@@ -205,6 +205,7 @@ def run_benchmark(
     progress: bool = True,
     retry_failed: bool = False,
     on_event: Callable[[str], None] | None = None,
+    dask_scheduler: str | None = None,
 ) -> dict:
     """Run (or resume) a benchmark into the run directory ``out``.
 
@@ -220,6 +221,10 @@ def run_benchmark(
         Re-run pairs recorded as failed.
     on_event : callable, optional
         Receives one-line status messages (the CLI prints them).
+    dask_scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``): pairs are matched and
+        scored on its workers (``pip install "topomatch[dask]"``; every worker needs
+        topomatch and the data at the same path). ``config.jobs`` is ignored then.
 
     Returns
     -------
@@ -227,6 +232,8 @@ def run_benchmark(
         The summary (also written to ``summary.json``).
     """
     config.validate()
+    if dask_scheduler is not None:
+        return _run_on_dask(config, out, dask_scheduler, progress=progress, retry_failed=retry_failed, on_event=on_event)
     say = on_event or (lambda s: logger.info("%s", s))
     run = RunDir(out)
     run.path.mkdir(parents=True, exist_ok=True)
@@ -288,7 +295,7 @@ def run_benchmark(
         if config.jobs > 1 and len(todo) > 1:
             from joblib import Parallel, delayed
 
-            gen = Parallel(n_jobs=config.jobs, return_as="generator_unordered")(
+            gen = Parallel(n_jobs=config.jobs, return_as="generator")(
                 delayed(_match_task)(config, str(run.path), method, matcher, pid) for pid in todo
             )
             for _ in gen:
@@ -306,6 +313,22 @@ def run_benchmark(
     manifest["wall_seconds_this_session"] = time.perf_counter() - t_start
     write_json(run.path / "manifest.json", manifest)
     return summary
+
+
+def _run_on_dask(config: BenchmarkConfig, out: str | os.PathLike[str], address: str, **kw: Any) -> dict:
+    """Run through joblib's Dask backend on an existing cluster."""
+    try:
+        from dask.distributed import Client
+    except ImportError as err:
+        raise ValueError('the Dask backend needs dask.distributed: pip install "topomatch[dask]"') from err
+    from dataclasses import replace
+
+    import joblib
+
+    with Client(address) as client:
+        n_workers = max(1, sum(client.nthreads().values()))
+        with joblib.parallel_config(backend="dask"):
+            return run_benchmark(replace(config, jobs=max(2, n_workers)), out, **kw)
 
 
 def score_stored_maps(run: RunDir, config: BenchmarkConfig, collection: ShapeCollection, protocols: list, pair_sets: dict, say: Callable[[str], None]) -> None:
