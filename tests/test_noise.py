@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from topomatch.datasets._isosurface import marching_tetrahedra
-from topomatch.datasets._noise_kernels import winding_on_grid
+from topomatch.datasets._isosurface import marching_tetrahedra, winding_numbers
 from topomatch.datasets._surface import HoleCaps, SurfaceLocator, decimate
 from topomatch.datasets.figure import POSES, build_figure
 from topomatch.datasets.noise import (
@@ -82,7 +81,7 @@ def test_winding_numbers_count_overlapping_layers():
     h = 0.1
     origin = np.array([-1.72, -1.23, -1.17])
     shape = (36, 26, 26)
-    w = winding_on_grid(v, faces, origin, h, *shape)
+    w = winding_numbers(v, faces, origin, h, shape)
     gx, gy, gz = np.meshgrid(*[origin[i] + h * np.arange(shape[i]) for i in range(3)], indexing="ij")
     p = np.stack([gx, gy, gz], -1)
     r1 = np.linalg.norm(p - [-0.5, 0, 0], axis=-1)
@@ -431,7 +430,7 @@ def test_builtin_benchmark_is_cached(small_collection, tmp_path, monkeypatch):
     key = _cache.array_hash(np.array([600, 1]), extra=b.GENERATOR_VERSION)
     _cache.save("builtin", key, b._pack(shapes))
 
-    def boom(n, r):
+    def boom(n, r, j=1):
         raise AssertionError("generated although cached")
 
     monkeypatch.setattr(b, "_generate", boom)
@@ -450,3 +449,27 @@ def test_builtin_benchmark_bad_arguments():
         builtin_benchmark(10)
     with pytest.raises(TypeError, match="random_state"):
         builtin_benchmark(random_state="a")
+
+
+def test_collection_does_not_depend_on_n_jobs(small_figure):
+    fig = small_figure
+    poses = {"p": fig.pose("knees_together"), "q": fig.pose("free")}
+    params = NoiseParams(n_vertices=700, shortcuts=1)
+    a = noisy_collection(fig.mesh.vertices, fig.mesh.faces, poses, params, null_vertices=700, random_state=11, n_jobs=1)
+    b = noisy_collection(fig.mesh.vertices, fig.mesh.faces, poses, params, null_vertices=700, random_state=11, n_jobs=2)
+    for name in ("p", "q"):
+        assert np.array_equal(a[name].mesh.vertices, b[name].mesh.vertices)
+        assert np.array_equal(a[name].ref_p2p, b[name].ref_p2p)
+
+
+def test_cli_writes_the_builtin_benchmark(builtin, tmp_path, monkeypatch):
+    from topomatch import _cache
+    from topomatch.cli.main import main
+    from topomatch.datasets.topkids import load_topkids
+
+    monkeypatch.setattr(_cache, "_CACHE_DIR", tmp_path / "cache")  # keep the user's cache out of it
+    assert main(["noise", "--builtin", "--out", str(tmp_path / "b")]) == 0
+    coll = load_topkids(tmp_path / "b", "low")
+    assert coll.names == [f"kid{i:02d}" for i in range(11)]
+    assert np.array_equal(coll["kid07"].mesh.faces, builtin["syn07"].mesh.faces)
+    assert np.array_equal(coll["kid07"].unreliable, builtin["syn07"].unreliable)

@@ -1,4 +1,4 @@
-"""Numba kernels of the topological-noise generator (inner loops over triangles and grid columns)."""
+"""Numba kernels of the topological-noise generator: closest points and quadric decimation."""
 
 from __future__ import annotations
 
@@ -101,133 +101,6 @@ def closest_points(points, vertices, faces, knn, vf_ptr, vf_idx, out_face, out_b
         out_feat[q] = bfeat
 
 
-@numba.njit(cache=True)
-def _column_range(lo, hi, origin, h, n):  # pragma: no cover - compiled
-    i0 = int(np.ceil((lo - origin) / h))
-    i1 = int(np.floor((hi - origin) / h))
-    if i0 < 0:
-        i0 = 0
-    if i1 > n - 1:
-        i1 = n - 1
-    return i0, i1
-
-
-@numba.njit(cache=True)
-def _edge_fn(ax, ay, bx, by, x, y):  # pragma: no cover - compiled
-    return (bx - ax) * (y - ay) - (by - ay) * (x - ax)
-
-
-@numba.njit(cache=True)
-def _column_hit(vertices, f0, f1, f2, x, y):  # pragma: no cover - compiled
-    """z of the vertical line (x, y) on triangle (f0, f1, f2) and +-1 crossing sign, or sign 0.
-
-    Each edge test is evaluated with the edge's endpoints in index order, so two
-    triangles sharing an edge see bit-identical values and exactly one of them claims
-    a line that passes through the edge (no crossing is lost or counted twice).
-    """
-    ids = (f0, f1, f2)
-    area2 = _edge_fn(vertices[f0, 0], vertices[f0, 1], vertices[f1, 0], vertices[f1, 1], vertices[f2, 0], vertices[f2, 1])
-    if area2 == 0.0:
-        return 0.0, 0
-    orient = 1.0 if area2 > 0.0 else -1.0
-    lam = np.zeros(3)
-    for e in range(3):
-        p = ids[e]
-        q = ids[(e + 1) % 3]
-        if p < q:
-            val = _edge_fn(vertices[p, 0], vertices[p, 1], vertices[q, 0], vertices[q, 1], x, y)
-            s = 1.0
-        else:
-            val = -_edge_fn(vertices[q, 0], vertices[q, 1], vertices[p, 0], vertices[p, 1], x, y)
-            s = -1.0
-        # the line is on the triangle's side of this edge; ties go to the side where the
-        # index-ordered edge function is >= 0, the same decision for both triangles
-        if orient > 0.0:
-            ok = val > 0.0 or (val == 0.0 and s > 0.0)
-        else:
-            ok = val < 0.0 or (val == 0.0 and s < 0.0)
-        if not ok:
-            return 0.0, 0
-        lam[(e + 2) % 3] = val * orient
-    tot = lam[0] + lam[1] + lam[2]
-    if tot <= 0.0:
-        return 0.0, 0
-    z = (lam[0] * vertices[f0, 2] + lam[1] * vertices[f1, 2] + lam[2] * vertices[f2, 2]) / tot
-    # normal z component has the sign of area2: an upward-facing triangle is an exit
-    return z, (-1 if area2 > 0.0 else 1)
-
-
-@numba.njit(cache=True)
-def winding_on_grid(vertices, faces, origin, h, nx, ny, nz):  # pragma: no cover - compiled
-    """Winding number of a closed oriented mesh at every grid point (nx, ny, nz) int16.
-
-    Every vertical grid column is intersected with the mesh; walking up the column the
-    number of enclosing layers goes up at a downward-facing crossing and down at an
-    upward-facing one. Self-intersecting parts simply add their layers.
-    """
-    counts = np.zeros(nx * ny, dtype=np.int64)
-    m = faces.shape[0]
-    for f in range(m):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        xlo = min(vertices[a, 0], vertices[b, 0], vertices[c, 0])
-        xhi = max(vertices[a, 0], vertices[b, 0], vertices[c, 0])
-        ylo = min(vertices[a, 1], vertices[b, 1], vertices[c, 1])
-        yhi = max(vertices[a, 1], vertices[b, 1], vertices[c, 1])
-        i0, i1 = _column_range(xlo, xhi, origin[0], h, nx)
-        j0, j1 = _column_range(ylo, yhi, origin[1], h, ny)
-        for i in range(i0, i1 + 1):
-            for j in range(j0, j1 + 1):
-                _, s = _column_hit(vertices, a, b, c, origin[0] + i * h, origin[1] + j * h)
-                if s != 0:
-                    counts[i * ny + j] += 1
-    ptr = np.zeros(nx * ny + 1, dtype=np.int64)
-    for t in range(nx * ny):
-        ptr[t + 1] = ptr[t] + counts[t]
-    hz = np.empty(ptr[-1])
-    hs = np.empty(ptr[-1], dtype=np.int64)
-    fill = ptr[:-1].copy()
-    for f in range(m):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        xlo = min(vertices[a, 0], vertices[b, 0], vertices[c, 0])
-        xhi = max(vertices[a, 0], vertices[b, 0], vertices[c, 0])
-        ylo = min(vertices[a, 1], vertices[b, 1], vertices[c, 1])
-        yhi = max(vertices[a, 1], vertices[b, 1], vertices[c, 1])
-        i0, i1 = _column_range(xlo, xhi, origin[0], h, nx)
-        j0, j1 = _column_range(ylo, yhi, origin[1], h, ny)
-        for i in range(i0, i1 + 1):
-            for j in range(j0, j1 + 1):
-                z, s = _column_hit(vertices, a, b, c, origin[0] + i * h, origin[1] + j * h)
-                if s != 0:
-                    t = i * ny + j
-                    hz[fill[t]] = z
-                    hs[fill[t]] = s
-                    fill[t] += 1
-    out = np.zeros((nx, ny, nz), dtype=np.int16)
-    for t in range(nx * ny):
-        lo = ptr[t]
-        hi = ptr[t + 1]
-        if hi == lo:
-            continue
-        order = np.argsort(hz[lo:hi])
-        i = t // ny
-        j = t - i * ny
-        w = 0
-        k = 0
-        for r in range(hi - lo):
-            zc = hz[lo + order[r]]
-            kz = int(np.floor((zc - origin[2]) / h)) + 1  # first grid z above the crossing
-            if kz > nz:
-                kz = nz
-            while k < kz:
-                out[i, j, k] = w
-                k += 1
-            w += hs[lo + order[r]]
-        while k < nz:
-            out[i, j, k] = w
-            k += 1
-    return out
-
-
 # ---------------------------------------------------------------------------------------
 # Topology-preserving quadric decimation, in passes of independent edge collapses.
 # ---------------------------------------------------------------------------------------
@@ -253,8 +126,8 @@ def _vertex_faces(faces, alive, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _face_plane_quadrics(vertices, faces, alive, boundary_weight):  # pragma: no cover - compiled
-    """Area-weighted plane quadrics per vertex (n, 10), plus perpendicular planes on boundary edges."""
+def _face_plane_quadrics(vertices, faces, alive):  # pragma: no cover - compiled
+    """Area-weighted plane quadrics per vertex, shape (n, 10)."""
     n = vertices.shape[0]
     q = np.zeros((n, 10))
     m = faces.shape[0]
@@ -425,9 +298,27 @@ def _heap_pop(hc, hi, size):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _push_edge(v, q, is_bnd, version, x, y, edge_weight, qbuf, hc, hi, size, n_items, ea, eb, va, vb, pp):  # pragma: no cover
+    """Score edge (x, y) and queue it; returns the new (size, n_items)."""
+    if n_items >= hc.shape[0]:
+        return size, n_items
+    c0, x0, y0, z0 = _edge_cost(v, q, x, y, is_bnd[x], is_bnd[y], edge_weight, qbuf)
+    ea[n_items] = x
+    eb[n_items] = y
+    va[n_items] = version[x]
+    vb[n_items] = version[y]
+    pp[n_items, 0] = x0
+    pp[n_items, 1] = y0
+    pp[n_items, 2] = z0
+    size = _heap_push(hc, hi, size, c0, n_items)
+    return size, n_items + 1
+
+
+@numba.njit(cache=True)
 def _ring_faces_ok(v, f, vf, vfc, a, b, p, min_quality):  # pragma: no cover - compiled
     """No face around a or b (other than those on edge ab) folds, flattens or becomes a needle."""
-    for end in (a, b):
+    for side in range(2):
+        end = a if side == 0 else b
         for t in range(vfc[end]):
             ff = vf[end, t]
             fa, fb, fc = f[ff, 0], f[ff, 1], f[ff, 2]
@@ -472,7 +363,7 @@ def decimate_heap(vertices, faces, target, edge_weight, min_quality, max_degree)
     m = f.shape[0]
     alive = np.ones(m, dtype=np.bool_)
     valive = np.ones(n, dtype=np.bool_)
-    q = _face_plane_quadrics(v, f, alive, 0.0)
+    q = _face_plane_quadrics(v, f, alive)
     cap = max_degree + 8
     vf = np.empty((n, cap), dtype=np.int64)
     vfc = np.zeros(n, dtype=np.int64)
@@ -509,16 +400,7 @@ def decimate_heap(vertices, faces, target, edge_weight, min_quality, max_degree)
             x = f[ff, c]
             y = f[ff, (c + 1) % 3]
             if x < y or (is_bnd[x] and is_bnd[y] and _has_edge(ptr, idx, f, x, y) == 1):
-                c0, x0, y0, z0 = _edge_cost(v, q, x, y, is_bnd[x], is_bnd[y], edge_weight, qbuf)
-                ea[n_items] = x
-                eb[n_items] = y
-                va[n_items] = 0
-                vb[n_items] = 0
-                pp[n_items, 0] = x0
-                pp[n_items, 1] = y0
-                pp[n_items, 2] = z0
-                size = _heap_push(hc, hi, size, c0, n_items)
-                n_items += 1
+                size, n_items = _push_edge(v, q, is_bnd, version, x, y, edge_weight, qbuf, hc, hi, size, n_items, ea, eb, va, vb, pp)
     n_alive = n
     mark = np.zeros(n, dtype=np.int64)
     stamp = 2
@@ -611,17 +493,5 @@ def decimate_heap(vertices, faces, target, edge_weight, min_quality, max_degree)
                     nb[nn] = x
                     nn += 1
         for r in range(nn):
-            x = nb[r]
-            if n_items >= size_cap:
-                break
-            c0, x0, y0, z0 = _edge_cost(v, q, b, x, is_bnd[b], is_bnd[x], edge_weight, qbuf)
-            ea[n_items] = b
-            eb[n_items] = x
-            va[n_items] = version[b]
-            vb[n_items] = version[x]
-            pp[n_items, 0] = x0
-            pp[n_items, 1] = y0
-            pp[n_items, 2] = z0
-            size = _heap_push(hc, hi, size, c0, n_items)
-            n_items += 1
+            size, n_items = _push_edge(v, q, is_bnd, version, b, nb[r], edge_weight, qbuf, hc, hi, size, n_items, ea, eb, va, vb, pp)
     return v, f, alive, n_alive

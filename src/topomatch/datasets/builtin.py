@@ -21,6 +21,7 @@ parameters, and memoised in the process.
 from __future__ import annotations
 
 import logging
+import os
 import time
 
 import numpy as np
@@ -58,7 +59,7 @@ _TEST = [f"syn{i:02d}" for i in range(7, 11)]
 _MEMO: dict[tuple, ShapeCollection] = {}
 
 
-def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0) -> ShapeCollection:
+def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0, n_jobs: int | None = None) -> ShapeCollection:
     """Build (or load from the cache) the built-in benchmark; deterministic for given arguments.
 
     Parameters
@@ -67,6 +68,9 @@ def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0) -> Shape
         Resolution: vertices of the null shape (noisy shapes scale with their area).
     random_state : int
         Seeds the shortcuts and the vertex shuffles.
+    n_jobs : int, optional
+        Worker processes for a generation (not for a cache hit); default: two when the
+        machine has two cores or more. The result does not depend on it.
 
     Returns
     -------
@@ -94,7 +98,9 @@ def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0) -> Shape
         shapes = None
     if shapes is None:
         t0 = time.perf_counter()
-        shapes = _generate(int(n_vertices), int(random_state))
+        if n_jobs is None:
+            n_jobs = min(2, os.cpu_count() or 1)
+        shapes = _generate(int(n_vertices), int(random_state), int(n_jobs))
         logger.info("built-in benchmark generated in %.1f s", time.perf_counter() - t0)
         _cache.save("builtin", key, _pack(shapes))
     coll = ShapeCollection(
@@ -109,7 +115,7 @@ def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0) -> Shape
     return coll
 
 
-def _generate(n_vertices: int, random_state: int) -> dict[str, Shape]:
+def _generate(n_vertices: int, random_state: int, n_jobs: int = 1) -> dict[str, Shape]:
     from topomatch.datasets.figure import build_figure
     from topomatch.datasets.noise import NoiseParams, noisy_collection
 
@@ -120,7 +126,7 @@ def _generate(n_vertices: int, random_state: int) -> dict[str, Shape]:
     pose_params = {name: NoiseParams(n_vertices=n_vertices, shortcuts=k) for name, k in _SHORTCUT_SHAPES.items()}
     coll = noisy_collection(
         fig.mesh.vertices, fig.mesh.faces, poses, params, pose_params=pose_params, template_sym=fig.sym,
-        null_vertices=n_vertices, reference=REFERENCE, name="builtin", random_state=rng,
+        null_vertices=n_vertices, reference=REFERENCE, name="builtin", random_state=rng, n_jobs=n_jobs,
     )
     shapes = {name: coll[name] for name in [REFERENCE, *BUILTIN_POSES]}
     return _shuffle(shapes, rng)

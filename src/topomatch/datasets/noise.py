@@ -39,15 +39,13 @@ from scipy import ndimage, sparse
 from scipy.spatial import cKDTree
 
 from topomatch._validation import check_faces, check_random_state, check_vertices
-from topomatch.datasets._isosurface import marching_tetrahedra
-from topomatch.datasets._noise_kernels import winding_on_grid
+from topomatch.datasets._isosurface import marching_tetrahedra, winding_numbers
 from topomatch.datasets._surface import (
     HoleCaps,
     SurfaceLocator,
     compact,
     decimate,
     keep_largest_component,
-    mirror_symmetry,
     relax_onto,
 )
 from topomatch.datasets.base import Shape, ShapeCollection, ref_matrix
@@ -274,7 +272,7 @@ def solid_field(
     if int(np.prod(shape)) > 60_000_000:
         raise ValueError(f"the voxel grid would have {shape} points; choose a larger voxel_size")
     origin = lo
-    wind = winding_on_grid(vertices, faces, origin, h, *shape)
+    wind = winding_numbers(vertices, faces, origin, h, shape)
     # distance to the surface: approximate everywhere, exact in a band around it
     samples = _surface_samples(vertices, faces, h)
     idx = np.clip(np.rint((samples - origin) / h).astype(np.int64), 0, np.array(shape) - 1)
