@@ -427,7 +427,7 @@ def test_builtin_benchmark_is_cached(small_collection, tmp_path, monkeypatch):
     shapes = {"syn00": small_collection["ref"], "syn01": small_collection["a"], "syn02": small_collection["b"]}
     monkeypatch.setattr(_cache, "_CACHE_DIR", tmp_path)
     monkeypatch.setattr(b, "_MEMO", {})
-    key = _cache.array_hash(np.array([600, 1]), extra=b.GENERATOR_VERSION)
+    key = _cache.array_hash(np.array([600, 1]), extra=b.GENERATOR_VERSION + b._source_digest())
     _cache.save("builtin", key, b._pack(shapes))
 
     def boom(n, r, j=1):

@@ -14,8 +14,8 @@ Shapes: ``syn00`` (null shape, rest pose), ``syn01``-``syn06`` (train),
 ``syn07``-``syn10`` (test). Vertex orders are shuffled per shape (``random_state``).
 
 Generation takes about 15-30 s on two cores; the result is cached on disk when a cache
-directory is configured (the command line does), keyed by the generator's version and
-parameters, and memoised in the process.
+directory is configured (the command line does), keyed by the arguments and a hash of
+the generator's source files, and memoised in the process.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ __all__ = ["BUILTIN_POSES", "builtin_benchmark"]
 
 logger = logging.getLogger(__name__)
 
-GENERATOR_VERSION = "builtin-2"
+GENERATOR_VERSION = "builtin-3"
 REFERENCE = "syn00"
 
 BUILTIN_POSES: dict[str, str] = {
@@ -86,7 +86,7 @@ def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0, n_jobs: 
     memo_key = (int(n_vertices), int(random_state))
     if memo_key in _MEMO:
         return _MEMO[memo_key]
-    key = _cache.array_hash(np.array([n_vertices, random_state]), extra=GENERATOR_VERSION)
+    key = _cache.array_hash(np.array([n_vertices, random_state]), extra=GENERATOR_VERSION + _source_digest())
     stored = _cache.load("builtin", key)
     if stored is not None:
         try:
@@ -113,6 +113,21 @@ def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0, n_jobs: 
     )
     _MEMO[memo_key] = coll
     return coll
+
+
+def _source_digest() -> str:
+    """Hash of the generator's source files: any change to them invalidates cached data."""
+    import hashlib
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in ("builtin.py", "figure.py", "noise.py", "_surface.py", "_isosurface.py", "_noise_kernels.py"):
+        try:
+            h.update((here / name).read_bytes())
+        except OSError:  # e.g. a zipped install: fall back to the version string alone
+            h.update(name.encode())
+    return h.hexdigest()[:16]
 
 
 def _generate(n_vertices: int, random_state: int, n_jobs: int = 1) -> dict[str, Shape]:

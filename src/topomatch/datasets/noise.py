@@ -572,8 +572,16 @@ def _template_sym_extended(sym: IndexArray | None, caps: HoleCaps, rest: FloatAr
     return ext
 
 
-def _nearest_corner(faces: IndexArray, face: IndexArray, bary: FloatArray) -> IndexArray:
-    return faces[face, np.argmax(bary, axis=1)]
+def _mirror_points(faces: IndexArray, face: IndexArray, bary: FloatArray, sym: IndexArray, vertices: FloatArray) -> tuple[FloatArray, BoolArray]:
+    """Mirror images of surface points ``(face, bary)``: the same weights on the corners' mirrors.
+
+    Returns the points, shape (n, 3), and whether every corner has a mirror, shape (n,).
+    """
+    corners = faces[face]
+    m = sym[corners]
+    ok = (m >= 0).all(axis=1)
+    pts = np.einsum("ij,ijk->ik", bary, vertices[np.maximum(m, 0)])
+    return pts, ok
 
 
 def _make_null(
@@ -685,10 +693,9 @@ def noisy_collection(
     n_null = null_mesh.n_vertices
     null_sym = None
     if sym_x is not None:
-        c = _nearest_corner(fx, null_face, null_bary)
-        m = sym_x[c]
-        d, j = null_tree.query(rest_x[np.maximum(m, 0)])
-        null_sym = np.where(m >= 0, j, -1).astype(np.int64)
+        pts, ok = _mirror_points(fx, null_face, null_bary, sym_x, rest_x)
+        _, j = null_tree.query(pts)
+        null_sym = np.where(ok, j, -1).astype(np.int64)
     shapes[reference] = Shape(reference, null_mesh, ref=sparse.identity(n_null, dtype=np.int8, format="csr"), sym=null_sym)
     sym_tol = 1.5 * params.resolved(area)["edge"]
     for key, res in zip(names, results):
@@ -697,11 +704,9 @@ def noisy_collection(
         n = res.mesh.n_vertices
         sym = None
         if sym_x is not None:
-            c = _nearest_corner(fx, res.face, res.bary)
-            mirror = sym_x[c]
-            posed_x = caps.extend(poses[key])
-            d, u = cKDTree(res.mesh.vertices).query(posed_x[np.maximum(mirror, 0)])
-            sym = np.where((mirror >= 0) & (d <= sym_tol) & ~res.unreliable, u, -1).astype(np.int64)
+            pts, ok = _mirror_points(fx, res.face, res.bary, sym_x, caps.extend(poses[key]))
+            d, u = cKDTree(res.mesh.vertices).query(pts)
+            sym = np.where(ok & (d <= sym_tol) & ~res.unreliable, u, -1).astype(np.int64)
             sym[res.unreliable[np.maximum(sym, 0)] & (sym >= 0)] = -1
         shapes[key] = Shape(key, res.mesh, ref=ref_matrix(np.c_[np.arange(n), ref], n, n_null), sym=sym, unreliable=res.unreliable)
     if splits is None:
