@@ -85,7 +85,8 @@ def main():
     p.add_argument("--builtin", action="store_true", help="the built-in synthetic benchmark")
     p.add_argument("--shapes", nargs="+", required=True)
     p.add_argument("--out", required=True)
-    p.add_argument("--up", type=int, default=None, help="index of the up axis (default: 2 for builtin, 1 for TOPKIDS)")
+    p.add_argument("--up", type=int, default=None, help="index of the up axis (default 2)")
+    p.add_argument("--front", type=float, default=None, help="azimuth of the front view in degrees (default: 180 for the built-in figure, 0 otherwise)")
     args = p.parse_args()
     if args.builtin:
         from topomatch.datasets.builtin import builtin_benchmark
@@ -104,7 +105,10 @@ def main():
         hl = s.unreliable
         frac = 0.0 if hl is None else float((m.vertex_areas * hl).sum() / m.area)
         items.append((f"{name}: {m.n_vertices} v, genus {m.genus}, {100 * frac:.1f}% unrel.", m.vertices, m.faces, hl))
-    render(items, args.out, up=up)
+    # the built-in figure (about one unit tall) faces +y, the KIDS children (about 100) -y
+    height = float(np.ptp(coll[coll.reference].mesh.vertices, axis=0).max())
+    front = args.front if args.front is not None else (180.0 if height < 10 else 0.0)
+    render(items, args.out, up=up, views=((front, 0.0), (front - 90.0, 0.0)))
     print(f"wrote {args.out}")
 
 

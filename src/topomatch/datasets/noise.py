@@ -552,7 +552,7 @@ def topological_noise(
 # ---------------------------------------------------------------------------------------
 # a collection: null shape + noisy poses, ground truth and symmetry
 # ---------------------------------------------------------------------------------------
-def _template_sym_extended(sym: IndexArray | None, caps: HoleCaps, rest: FloatArray) -> IndexArray | None:
+def _template_sym_extended(sym: IndexArray | None, caps: HoleCaps) -> IndexArray | None:
     """Template symmetry map extended to the cap centres (mirror of the nearest cap)."""
     if sym is None:
         return None
@@ -668,7 +668,7 @@ def noisy_collection(
     rng = check_random_state(random_state)
     caps = HoleCaps.build(faces, len(rest))
     fx = np.concatenate([faces, caps.faces])
-    sym_x = _template_sym_extended(template_sym, caps, rest)
+    sym_x = _template_sym_extended(template_sym, caps)
     area = float(face_areas(rest, faces).sum())
     null_mesh, null_face, null_bary = _make_null(rest, faces, caps, int(null_vertices or params.n_vertices), reference)
     null_tree = cKDTree(null_mesh.vertices)
@@ -782,9 +782,12 @@ def write_topkids(
 
 
 def _write_sym_column(path: Path, sym: IndexArray) -> None:
-    from topomatch.io.correspondences import _atomic_write_text
+    """One-column ``_sym`` file (the TOPKIDS null shape's): line i holds i's mirror, 0 = none."""
+    import os
 
-    _atomic_write_text(path, "".join(f"{int(v) + 1}\n" for v in sym))
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text("".join(f"{int(v) + 1}\n" for v in sym))
+    os.replace(tmp, path)
 
 
 def _write_sym_pairs(path: Path, sym: IndexArray) -> None:
