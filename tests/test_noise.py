@@ -295,7 +295,7 @@ def test_write_topkids_round_trip(small_collection, tmp_path):
 
     folder = write_topkids(small_collection, tmp_path)
     assert folder == tmp_path / "low_res"
-    for stem in ("kid00.off", "kid00_sym.txt", "kid01.off", "kid01_ref.txt", "kid01_sym.txt", "kid01_indmap.txt", "kid03_indmap.txt"):
+    for stem in ("kid00.off", "kid00_sym.txt", "kid01.off", "kid01_ref.txt", "kid01_sym.txt", "kid01_indmap.txt", "kid01_info.txt", "kid03_indmap.txt"):
         assert (folder / stem).is_file()
     back = load_topkids(tmp_path, "low")
     assert back.names == ["kid00", "kid01", "kid02", "kid03"]

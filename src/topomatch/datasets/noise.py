@@ -731,8 +731,8 @@ def write_topkids(
 
     Files: ``kid00.off`` and ``kid00_sym.txt`` (one column) for the reference, and for
     every other shape ``kidNN.off``, ``kidNN_ref.txt`` (vertex, null vertex; one-based),
-    ``kidNN_sym.txt`` (vertex, mirror vertex; 0 = none) and ``kidNN_indmap.txt`` (1 =
-    unreliable), so :func:`topomatch.datasets.topkids.load_topkids` reads it unchanged.
+    ``kidNN_sym.txt`` (vertex, mirror vertex; 0 = none), ``kidNN_indmap.txt`` (1 =
+    unreliable) and ``kidNN_info.txt`` (counts, as in the release), so :func:`topomatch.datasets.topkids.load_topkids` reads it unchanged.
 
     Parameters
     ----------
@@ -777,7 +777,15 @@ def write_topkids(
         write_ref(out / f"{stem}_ref.txt", pairs[pairs[:, 1] >= 0])
         if s.sym is not None:
             _write_sym_pairs(out / f"{stem}_sym.txt", s.sym)
-        write_indmap(out / f"{stem}_indmap.txt", np.zeros(s.n_vertices, bool) if s.unreliable is None else s.unreliable)
+        unrel = np.zeros(s.n_vertices, bool) if s.unreliable is None else s.unreliable
+        write_indmap(out / f"{stem}_indmap.txt", unrel)
+        info = (
+            f"Number of vertices: {s.n_vertices:6d} \nNumber of faces: {s.mesh.n_faces:6d} \n"
+            f"Percentage of vertices matched to reference: {100 * (1 - unrel.mean()):g} \n"
+        )
+        if s.sym is not None:
+            info += f"Percentage of vertices with symmetry: {float(np.mean(s.sym >= 0)):g} \n"
+        (out / f"{stem}_info.txt").write_text(info)
     return out
 
 
