@@ -473,3 +473,26 @@ def test_cli_writes_the_builtin_benchmark(builtin, tmp_path, monkeypatch):
     assert coll.names == [f"kid{i:02d}" for i in range(11)]
     assert np.array_equal(coll["kid07"].mesh.faces, builtin["syn07"].mesh.faces)
     assert np.array_equal(coll["kid07"].unreliable, builtin["syn07"].unreliable)
+
+
+@pytest.mark.data
+def test_kids_pose_ground_truth_matches_known_correspondence(tmp_path):
+    """A clean KIDS pose (same connectivity as the null shape): transferred ground truth vs the truth."""
+    from conftest import data_path
+
+    null_path = data_path("kids", "0001.null.0.off")
+    pose_path = data_path("kids", "0001.isometry.15.off")
+    coll = noise_files(null_path, [pose_path], tmp_path, NoiseParams(n_vertices=3000))
+    null = TriangleMesh.from_file(null_path)
+    pose = TriangleMesh.from_file(pose_path)
+    kid00, s = coll["kid00"], coll["kid01"]
+    assert len(kid00.mesh.boundary_loops) == 3 and kid00.sym is not None
+    assert s.mesh.n_components == 1 and s.mesh.is_manifold and s.mesh.genus > 0
+    frac = float((s.mesh.vertex_areas * s.unreliable).sum() / s.mesh.area)
+    assert 0.005 < frac < 0.15  # hands on the face, crossed legs: fused seams
+    face, bary, _ = SurfaceLocator(null.vertices, null.faces).query(kid00.mesh.vertices)
+    carried = np.einsum("ij,ijk->ik", bary, pose.vertices[null.faces[face]])
+    err = np.linalg.norm(carried[s.ref_p2p] - s.mesh.vertices, axis=1)
+    edge = np.median(np.linalg.norm(kid00.mesh.vertices[kid00.mesh.edges[:, 0]] - kid00.mesh.vertices[kid00.mesh.edges[:, 1]], axis=1))
+    rel = ~s.unreliable
+    assert np.median(err[rel]) < 0.5 * edge and np.percentile(err[rel], 95) < 0.9 * edge
