@@ -98,6 +98,31 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-html", action="store_true", help="skip report.html")
     r.add_argument("--max-html-mb", type=float, default=60.0, help="budget for mesh and map data embedded in the HTML viewer")
 
+    nz = sub.add_parser(
+        "noise",
+        help="make topological-noise data (TOPKIDS layout) from clean shapes in correspondence",
+        description="Fuse touching parts of each posed clean mesh, keep the single outer surface, remesh it, and "
+        "write the TOPKIDS layout (kidNN.off, _ref, _sym, _indmap) into OUT/low_res. See docs/noise.md.",
+    )
+    nz.add_argument("null", nargs="?", help="clean null (rest-pose) mesh: the template")
+    nz.add_argument("poses", nargs="*", help="clean posed meshes, same connectivity as NULL (or give --vertex-map)")
+    nz.add_argument("--builtin", action="store_true", help="write the built-in synthetic benchmark instead")
+    nz.add_argument("--out", required=True, metavar="DIR", help="data directory to create (files go to DIR/low_res)")
+    nz.add_argument("--vertices", type=int, help="output resolution (default 10000; 5000 with --builtin)")
+    nz.add_argument("--null-vertices", type=int, help="vertices of the null shape kid00 (default: --vertices)")
+    nz.add_argument("--voxel-size", type=float, help="grid spacing of the inside/outside field (default 0.6 x edge)")
+    nz.add_argument("--merge-distance", type=float, help="gaps narrower than this fuse (default: one edge length)")
+    nz.add_argument("--unreliable-distance", type=float, help="vertices farther from the clean surface are unreliable (default 0.5 x edge)")
+    nz.add_argument("--shortcuts", type=int, default=0, help="synthetic shortcuts per shape (second mode)")
+    nz.add_argument("--shortcut-radius", type=float, help="shortcut capsule radius (default 1.5 x edge)")
+    nz.add_argument("--shortcut-max-gap", type=float, help="longest gap a shortcut bridges (default 0.15 sqrt(area))")
+    nz.add_argument("--vertex-map", action="append", default=[], metavar="FILE", help="per pose, in order: one-based vertex of the pose for each null vertex")
+    nz.add_argument("--sym", metavar="FILE", help="left-right map of NULL (_sym format)")
+    nz.add_argument("--mirror-axis", choices=["auto", "x", "y", "z", "none"], default="auto", help="without --sym: find the map by reflection (default auto)")
+    nz.add_argument("--no-holes", action="store_true", help="do not re-open the null shape's boundary loops in the outputs")
+    nz.add_argument("--seed", type=int, default=0, help="random_state")
+    nz.add_argument("--jobs", type=int, default=1, help="worker processes")
+
     d = sub.add_parser("data", help="inspect the data")
     dsub = d.add_subparsers(dest="data_command", required=True)
     for name, help_ in (("info", "counts, topology and ground-truth coverage per shape"), ("check", "parse every file; exit 1 on any problem")):
@@ -276,6 +301,52 @@ def cmd_data(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def cmd_noise(args: argparse.Namespace) -> int:
+    from topomatch.datasets.noise import NoiseParams, noise_files, write_topkids
+
+    t0 = time.perf_counter()
+    try:
+        if args.builtin:
+            if args.null or args.poses:
+                raise ValueError("--builtin takes no input meshes")
+            from topomatch.datasets.builtin import builtin_benchmark
+
+            _enable_cache(False)
+            coll = builtin_benchmark(args.vertices or 5000, random_state=args.seed)
+            folder = write_topkids(coll, args.out)
+        else:
+            if not args.null or not args.poses:
+                raise ValueError("give the null mesh and at least one posed mesh (or --builtin)")
+            params = NoiseParams(
+                n_vertices=args.vertices or 10_000,
+                voxel_size=args.voxel_size,
+                merge_distance=args.merge_distance,
+                unreliable_distance=args.unreliable_distance,
+                shortcuts=args.shortcuts,
+                shortcut_radius=args.shortcut_radius,
+                shortcut_max_gap=args.shortcut_max_gap,
+                keep_holes=not args.no_holes,
+            )
+            coll = noise_files(
+                args.null,
+                args.poses,
+                args.out,
+                params,
+                vertex_maps=args.vertex_map or None,
+                sym=args.sym,
+                mirror_axis=None if args.mirror_axis == "none" else args.mirror_axis,
+                null_vertices=args.null_vertices,
+                random_state=args.seed,
+                n_jobs=args.jobs,
+            )
+            folder = coll.root
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {len(coll.names)} shapes to {folder} in {time.perf_counter() - t0:.1f} s; inspect with: topomatch data info --data {args.out}", file=sys.stderr)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     parser = _build_parser()
@@ -291,5 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_data(args)
     if args.command == "report":
         return cmd_report(args)
+    if args.command == "noise":
+        return cmd_noise(args)
     parser.error(f"unknown command {args.command}")
     return 2
