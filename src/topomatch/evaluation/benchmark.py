@@ -166,15 +166,23 @@ def _fit(config: BenchmarkConfig, matcher: Matcher, collection: ShapeCollection)
     return time.perf_counter() - t0
 
 
-def _match_task(config: BenchmarkConfig, run_path: str, method: str, matcher: Matcher, pair_id: str) -> tuple[str, str, str]:
-    """Run one pair in a worker; store the map or the failure. Returns (method, pair, status)."""
+def _match_task(
+    config: BenchmarkConfig, run_path: str, method: str, matcher: Matcher, pair_id: str, meshes: tuple | None = None
+) -> tuple[str, str, str]:
+    """Run one pair (in a worker); store the map or the failure. Returns (method, pair, status).
+
+    ``meshes`` = (source, target) when given; otherwise they are loaded from the dataset
+    in this process (cheap for files, and their caches then serve later pairs).
+    """
     run = RunDir(run_path)
-    collection = load_collection(config)
     pair = PairSpec.from_id(pair_id)
     t0 = time.perf_counter()
     try:
-        source = collection[pair.source].mesh
-        target = collection[pair.target].mesh
+        if meshes is None:
+            collection = load_collection(config)
+            source, target = collection[pair.source].mesh, collection[pair.target].mesh
+        else:
+            source, target = meshes
         with PeakMemory() as mem:
             t0 = time.perf_counter()
             corr = matcher.match(source, target)
@@ -190,6 +198,18 @@ def _match_task(config: BenchmarkConfig, run_path: str, method: str, matcher: Ma
         run.save_failure(method, pair_id, f"{type(err).__name__}: {err}", traceback.format_exc(), time.perf_counter() - t0)
         logger.warning("%s failed on %s: %s", method, pair_id, err)
         return method, pair_id, "error"
+
+
+def _ship(config: BenchmarkConfig, collection: ShapeCollection, pair_id: str) -> tuple | None:
+    """Meshes to send to a worker, or ``None`` to let the worker read them.
+
+    Generated datasets travel (regenerating them in every worker costs tens of
+    seconds); file datasets are read by the worker itself.
+    """
+    if config.dataset != "builtin":
+        return None
+    pair = PairSpec.from_id(pair_id)
+    return collection[pair.source].mesh, collection[pair.target].mesh
 
 
 def _progress(total: int, desc: str, enabled: bool):
@@ -296,7 +316,7 @@ def run_benchmark(
             from joblib import Parallel, delayed
 
             gen = Parallel(n_jobs=config.jobs, return_as="generator")(
-                delayed(_match_task)(config, str(run.path), method, matcher, pid) for pid in todo
+                delayed(_match_task)(config, str(run.path), method, matcher, pid, _ship(config, collection, pid)) for pid in todo
             )
             for _ in gen:
                 bar.update(1)
