@@ -11,7 +11,7 @@ from topomatch.matching import MATCHERS, Correspondence, Matcher
 class FailsOnSomePairs(Matcher):
     name = "flaky"
 
-    def __init__(self, *, fail_source: str = "syn05") -> None:
+    def __init__(self, *, fail_source: str = "syn08") -> None:
         self.fail_source = fail_source
 
     def match(self, source, target):
@@ -55,8 +55,8 @@ def test_failing_pair_is_recorded_not_fatal(tmp_path, flaky_registered):
     cfg = BenchmarkConfig(methods=["flaky"], protocols=["shrec16"])
     s = run_benchmark(cfg, tmp_path / "r", progress=False)
     b = s["methods"]["flaky"]["shrec16"]
-    assert b["n_failed"] == 3 and b["n_pairs"] == 9
-    fail = RunDir(tmp_path / "r").load_failure("flaky", "syn06-syn05")
+    assert b["n_failed"] == 3 and b["n_pairs"] == 9  # 4 test shapes: 12 pairs, 3 with source syn08
+    fail = RunDir(tmp_path / "r").load_failure("flaky", "syn07-syn08")
     assert "deliberate failure" in fail["error"] and "Traceback" in fail["traceback"]
     csv_text = (tmp_path / "r" / "pairs.csv").read_text()
     assert "deliberate failure" in csv_text
@@ -88,3 +88,17 @@ def test_dask_backend(tmp_path):
         s = run_benchmark(cfg, tmp_path / "d", progress=False, dask_scheduler=cluster.scheduler_address)
     assert s["methods"]["oracle"]["shrec16"]["auc_mean"] == 1.0
     assert s["methods"]["oracle"]["shrec16"]["n_pairs"] == 12
+
+
+def test_max_pairs_takes_an_evenly_spaced_subset(tmp_path):
+    from topomatch.evaluation.benchmark import subset_pairs
+    from topomatch.evaluation.protocols import PairSpec
+
+    pairs = [PairSpec(f"kid{i:02d}", "kid00") for i in range(1, 26)]
+    sub = subset_pairs(pairs, 5)
+    assert [p.target for p in sub] == ["kid01", "kid07", "kid13", "kid19", "kid25"]
+    assert subset_pairs(pairs, 40) == pairs
+    with pytest.raises(ValueError, match="max_pairs"):
+        BenchmarkConfig(max_pairs=0).validate()
+    s = run_benchmark(BenchmarkConfig(methods=["oracle"], protocols=["topkids25"], max_pairs=2), tmp_path / "m", progress=False)
+    assert s["methods"]["oracle"]["topkids25"]["n_pairs"] == 2

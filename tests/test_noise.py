@@ -22,6 +22,8 @@ from topomatch.datasets.noise import (
 from topomatch.datasets.toy import grid, icosphere
 from topomatch.mesh import TriangleMesh
 
+from .conftest import data_path
+
 
 def _grid_field(fn, lo=-1.5, hi=1.5, h=0.05):
     g = np.arange(lo, hi + h / 2, h)
@@ -478,8 +480,6 @@ def test_cli_writes_the_builtin_benchmark(builtin, tmp_path, monkeypatch):
 @pytest.mark.data
 def test_kids_pose_ground_truth_matches_known_correspondence(tmp_path):
     """A clean KIDS pose (same connectivity as the null shape): transferred ground truth vs the truth."""
-    from conftest import data_path
-
     null_path = data_path("kids", "0001.null.0.off")
     pose_path = data_path("kids", "0001.isometry.15.off")
     coll = noise_files(null_path, [pose_path], tmp_path, NoiseParams(n_vertices=3000))

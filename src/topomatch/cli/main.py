@@ -58,6 +58,7 @@ def _build_parser() -> argparse.ArgumentParser:
     b.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="hyperparameter (repeatable)")
     b.add_argument("--out", metavar="RUN", help="run directory (default: runs/<dataset>-<time>)")
     b.add_argument("--jobs", type=int, default=1, help="worker processes")
+    b.add_argument("--max-pairs", type=int, metavar="N", help="at most N pairs per protocol (evenly spaced subset)")
     b.add_argument("--dask", metavar="SCHEDULER", help="run on an existing Dask cluster (tcp://host:8786; needs topomatch[dask])")
     b.add_argument("--seed", type=int, default=0, help="random_state for every method")
     sym = b.add_mutually_exclusive_group()
@@ -178,6 +179,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         geodesics=args.geodesic,
         jobs=args.jobs,
         random_state=args.seed,
+        max_pairs=args.max_pairs,
     )
     out = Path(args.out) if args.out else Path("runs") / f"{dataset}-{time.strftime('%Y%m%d-%H%M%S')}"
     _enable_cache(args.no_cache)

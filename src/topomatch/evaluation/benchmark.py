@@ -60,6 +60,10 @@ class BenchmarkConfig:
         Worker processes.
     random_state : int
         Passed to every matcher that takes one (and to the built-in data).
+    max_pairs : int, optional
+        Score at most this many pairs per protocol: an evenly spaced, deterministic subset
+        of the protocol's ordered pair list (for expensive methods, e.g. at high res).
+        Summaries then state ``n_pairs`` honestly; ``None`` runs every pair.
     """
 
     dataset: str = "builtin"
@@ -74,6 +78,7 @@ class BenchmarkConfig:
     jobs: int = 1
     random_state: int = 0
     external: bool = False
+    max_pairs: int | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` on unknown names."""
@@ -93,9 +98,19 @@ class BenchmarkConfig:
             raise ValueError(f"split must be train, test or all, got {self.split!r}")
         if self.jobs < 1:
             raise ValueError("jobs must be >= 1")
+        if self.max_pairs is not None and (isinstance(self.max_pairs, bool) or int(self.max_pairs) < 1):
+            raise ValueError(f"max_pairs must be a positive integer, got {self.max_pairs!r}")
 
 
 _COLLECTIONS: dict[str, ShapeCollection] = {}
+
+
+def subset_pairs(pairs: list[PairSpec], max_pairs: int) -> list[PairSpec]:
+    """An evenly spaced, deterministic subset of at most ``max_pairs`` pairs (order kept)."""
+    if len(pairs) <= max_pairs:
+        return list(pairs)
+    idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, int(max_pairs))).astype(np.int64))
+    return [pairs[i] for i in idx]
 
 
 def load_collection(config: BenchmarkConfig) -> ShapeCollection:
@@ -275,7 +290,10 @@ def run_benchmark(
     pair_sets = {p.name: p.pairs(collection, config.split) for p in protocols}
     for p in protocols:
         exp = p.expected_pairs(collection, config.split)
-        if len(pair_sets[p.name]) < exp:
+        if config.max_pairs is not None and len(pair_sets[p.name]) > config.max_pairs:
+            pair_sets[p.name] = subset_pairs(pair_sets[p.name], config.max_pairs)
+            say(f"{p.name}: {config.max_pairs} of {exp} pairs (evenly spaced subset, --max-pairs)")
+        elif len(pair_sets[p.name]) < exp:
             say(f"{p.name}: {len(pair_sets[p.name])} of {exp} pairs present ({'; '.join(collection.missing[:3])}...)")
     all_pairs = list(dict.fromkeys(pr.id for prs in pair_sets.values() for pr in prs))
     manifest = {
