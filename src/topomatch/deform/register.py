@@ -405,6 +405,7 @@ def register(
     *,
     graph: DeformationGraph | None = None,
     start: GraphDeformation | None = None,
+    samples: tuple[IndexArray, IndexArray] | None = None,
     cap: float = 0.05,
 ) -> RegistrationResult:
     """Deform the source onto the target: correspondence fit, then closest-point ICP.
@@ -424,6 +425,9 @@ def register(
     start : GraphDeformation, optional
         Initial state on another graph of the same source; its deformed vertices seed
         this registration.
+    samples : pair of ndarray, optional
+        Source and target vertex samples for the closest-point phase; computed by
+        farthest-point sampling when ``schedule.n_samples`` is set and they are omitted.
     cap : float
         Distance cap of the residual.
 
@@ -462,7 +466,9 @@ def register(
     elif start is None and init_pairs is None:
         raise ValueError("register needs init_pairs or a start state")
     src_s = tgt_s = None
-    if schedule.n_samples is not None:
+    if samples is not None:
+        src_s, tgt_s = (np.asarray(x, dtype=np.int64) for x in samples)
+    elif schedule.n_samples is not None:
         src_s = farthest_point_sampling(min(schedule.n_samples, len(V)), points=V, first=0)
         tgt_s = farthest_point_sampling(min(schedule.n_samples, len(W)), points=W, first=0)
     tree = cKDTree(W)
