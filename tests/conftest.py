@@ -73,3 +73,19 @@ def builtin():
     from topomatch.datasets.builtin import builtin_benchmark
 
     return builtin_benchmark()
+
+
+@pytest.fixture(scope="session")
+def report_run(tmp_path_factory):
+    """A tiny finished run (built-in data, descriptor-nn and the oracle, both protocols)."""
+    from topomatch.evaluation.benchmark import BenchmarkConfig, run_benchmark
+
+    run = tmp_path_factory.mktemp("report") / "run"
+    config = BenchmarkConfig(
+        dataset="builtin",
+        methods=["descriptor-nn", "oracle"],
+        protocols=["shrec16", "topkids25"],
+        params={"descriptor-nn": {"k": 20, "n_descriptors": 16}},  # small: the fixture is about the run format
+    )
+    run_benchmark(config, run, progress=False)
+    return run

@@ -6,6 +6,6 @@ reference methods behind one Matcher interface, and the tools to run them.
 
 __version__ = "0.1.0"
 
-from topomatch.mesh import TriangleMesh  # noqa: E402
+from topomatch.mesh import TriangleMesh
 
 __all__ = ["TriangleMesh", "__version__"]

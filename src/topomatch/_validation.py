@@ -44,9 +44,8 @@ def check_faces(faces: object, n_vertices: int, name: str = "faces") -> IndexArr
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3:
         raise ValueError(f"{name} must have shape (n_faces, 3) (triangles), got {f.shape}")
-    if f.size and not np.issubdtype(f.dtype, np.integer):
-        if not np.all(np.mod(f, 1) == 0):
-            raise TypeError(f"{name} must hold integer vertex indices, got dtype {f.dtype}")
+    if f.size and not np.issubdtype(f.dtype, np.integer) and not np.all(np.mod(f, 1) == 0):
+        raise TypeError(f"{name} must hold integer vertex indices, got dtype {f.dtype}")
     f = np.ascontiguousarray(f, dtype=np.int64)
     if f.size and (f.min() < 0 or f.max() >= n_vertices):
         raise ValueError(

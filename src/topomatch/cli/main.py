@@ -58,6 +58,8 @@ def _build_parser() -> argparse.ArgumentParser:
     b.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="hyperparameter (repeatable)")
     b.add_argument("--out", metavar="RUN", help="run directory (default: runs/<dataset>-<time>)")
     b.add_argument("--jobs", type=int, default=1, help="worker processes")
+    b.add_argument("--max-pairs", type=int, metavar="N", help="at most N pairs per protocol (evenly spaced subset)")
+    b.add_argument("--dask", metavar="SCHEDULER", help="run on an existing Dask cluster (tcp://host:8786; needs topomatch[dask])")
     b.add_argument("--seed", type=int, default=0, help="random_state for every method")
     sym = b.add_mutually_exclusive_group()
     sym.add_argument("--symmetric", dest="symmetric", action="store_true", default=None, help="accept symmetric solutions")
@@ -90,6 +92,38 @@ def _build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", required=True, metavar="MAP", help="output file (.txt one-based vertex map, .npy zero-based, or --format shrec16)")
     m.add_argument("--format", choices=["p2p", "shrec16", "npy"], help="default from the suffix (.npy -> npy, else p2p)")
 
+    r = sub.add_parser("report", help="figures, tables and the HTML report from run directories")
+    r.add_argument("runs", nargs="+", metavar="RUN", help="run directories (e.g. a low-res and a high-res run side by side)")
+    r.add_argument("--out", metavar="DIR", help="output folder (default: RUN/report for one run, else report-<time>)")
+    r.add_argument("--no-render", action="store_true", help="skip the mesh renderings (Fig. 4/5)")
+    r.add_argument("--no-html", action="store_true", help="skip report.html")
+    r.add_argument("--max-html-mb", type=float, default=60.0, help="budget for mesh and map data embedded in the HTML viewer")
+
+    nz = sub.add_parser(
+        "noise",
+        help="make topological-noise data (TOPKIDS layout) from clean shapes in correspondence",
+        description="Fuse touching parts of each posed clean mesh, keep the single outer surface, remesh it, and "
+        "write the TOPKIDS layout (kidNN.off, _ref, _sym, _indmap) into OUT/low_res. See docs/noise.md.",
+    )
+    nz.add_argument("null", nargs="?", help="clean null (rest-pose) mesh: the template")
+    nz.add_argument("poses", nargs="*", help="clean posed meshes, same connectivity as NULL (or give --vertex-map)")
+    nz.add_argument("--builtin", action="store_true", help="write the built-in synthetic benchmark instead")
+    nz.add_argument("--out", required=True, metavar="DIR", help="data directory to create (files go to DIR/low_res)")
+    nz.add_argument("--vertices", type=int, help="output resolution (default 10000; 5000 with --builtin)")
+    nz.add_argument("--null-vertices", type=int, help="vertices of the null shape kid00 (default: --vertices)")
+    nz.add_argument("--voxel-size", type=float, help="grid spacing of the inside/outside field (default 0.6 x edge)")
+    nz.add_argument("--merge-distance", type=float, help="gaps narrower than this fuse (default: one edge length)")
+    nz.add_argument("--unreliable-distance", type=float, help="vertices farther from the clean surface are unreliable (default 0.5 x edge)")
+    nz.add_argument("--shortcuts", type=int, default=0, help="synthetic shortcuts per shape (second mode)")
+    nz.add_argument("--shortcut-radius", type=float, help="shortcut capsule radius (default 1.5 x edge)")
+    nz.add_argument("--shortcut-max-gap", type=float, help="longest gap a shortcut bridges (default 0.15 sqrt(area))")
+    nz.add_argument("--vertex-map", action="append", default=[], metavar="FILE", help="per pose, in order: one-based vertex of the pose for each null vertex")
+    nz.add_argument("--sym", metavar="FILE", help="left-right map of NULL (_sym format)")
+    nz.add_argument("--mirror-axis", choices=["auto", "x", "y", "z", "none"], default="auto", help="without --sym: find the map by reflection (default auto)")
+    nz.add_argument("--no-holes", action="store_true", help="do not re-open the null shape's boundary loops in the outputs")
+    nz.add_argument("--seed", type=int, default=0, help="random_state")
+    nz.add_argument("--jobs", type=int, default=1, help="worker processes")
+
     d = sub.add_parser("data", help="inspect the data")
     dsub = d.add_subparsers(dest="data_command", required=True)
     for name, help_ in (("info", "counts, topology and ground-truth coverage per shape"), ("check", "parse every file; exit 1 on any problem")):
@@ -112,17 +146,11 @@ def _enable_cache(disabled: bool) -> None:
         _cache.set_cache_dir(_cache.default_cache_dir())
 
 
-def _print_table(summary: dict, run: Path, labels: dict[str, str]) -> None:
-    from topomatch.evaluation.tables import method_rows, to_csv, to_latex, to_markdown
+def _print_table(summary: dict, labels: dict[str, str]) -> None:
+    """Print the results table (the report writes it to files as Markdown, CSV and LaTeX)."""
+    from topomatch.evaluation.tables import method_rows, to_markdown
 
-    rows = method_rows(summary, labels)
-    table = to_markdown(rows)
-    out = run / "report"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table.md").write_text(table)
-    (out / "table.csv").write_text(to_csv(rows))
-    (out / "table.tex").write_text(to_latex(rows))
-    sys.stdout.write(table)
+    sys.stdout.write(to_markdown(method_rows(summary, labels)))
 
 
 def _labels(methods: Sequence[str]) -> dict[str, str]:
@@ -151,16 +179,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
         geodesics=args.geodesic,
         jobs=args.jobs,
         random_state=args.seed,
+        max_pairs=args.max_pairs,
     )
     out = Path(args.out) if args.out else Path("runs") / f"{dataset}-{time.strftime('%Y%m%d-%H%M%S')}"
     _enable_cache(args.no_cache)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     try:
-        summary = run_benchmark(config, out, progress=not args.quiet and sys.stderr.isatty(), retry_failed=args.retry_failed, on_event=say)
+        summary = run_benchmark(
+            config, out, progress=not args.quiet and sys.stderr.isatty(), retry_failed=args.retry_failed, on_event=say, dask_scheduler=args.dask
+        )
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _print_table(summary, out, _labels(methods))
+    _print_table(summary, _labels(methods))
     _report(out, say)
     say(f"run directory: {out}")
     return 0
@@ -200,7 +231,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _print_table(summary, out, {})
+    _print_table(summary, {})
     say(f"run directory: {out}")
     return 0
 
@@ -239,6 +270,22 @@ def cmd_match(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from topomatch.report import build_report
+
+    runs = [Path(r) for r in args.runs]
+    out = Path(args.out) if args.out else (runs[0] / "report" if len(runs) == 1 else Path(f"report-{time.strftime('%Y%m%d-%H%M%S')}"))
+    t0 = time.perf_counter()
+    try:
+        path = build_report(runs, out, renderings=not args.no_render, html=not args.no_html, max_html_mb=args.max_html_mb)
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    sys.stdout.write((out / "table1.md").read_text())
+    print(f"report written to {out} in {time.perf_counter() - t0:.1f} s: {path}", file=sys.stderr)
+    return 0
+
+
 def cmd_data(args: argparse.Namespace) -> int:
     from topomatch.datasets.inspect import data_report
 
@@ -256,6 +303,52 @@ def cmd_data(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def cmd_noise(args: argparse.Namespace) -> int:
+    from topomatch.datasets.noise import NoiseParams, noise_files, write_topkids
+
+    t0 = time.perf_counter()
+    try:
+        if args.builtin:
+            if args.null or args.poses:
+                raise ValueError("--builtin takes no input meshes")
+            from topomatch.datasets.builtin import builtin_benchmark
+
+            _enable_cache(False)
+            coll = builtin_benchmark(args.vertices or 5000, random_state=args.seed)
+            folder = write_topkids(coll, args.out)
+        else:
+            if not args.null or not args.poses:
+                raise ValueError("give the null mesh and at least one posed mesh (or --builtin)")
+            params = NoiseParams(
+                n_vertices=args.vertices or 10_000,
+                voxel_size=args.voxel_size,
+                merge_distance=args.merge_distance,
+                unreliable_distance=args.unreliable_distance,
+                shortcuts=args.shortcuts,
+                shortcut_radius=args.shortcut_radius,
+                shortcut_max_gap=args.shortcut_max_gap,
+                keep_holes=not args.no_holes,
+            )
+            coll = noise_files(
+                args.null,
+                args.poses,
+                args.out,
+                params,
+                vertex_maps=args.vertex_map or None,
+                sym=args.sym,
+                mirror_axis=None if args.mirror_axis == "none" else args.mirror_axis,
+                null_vertices=args.null_vertices,
+                random_state=args.seed,
+                n_jobs=args.jobs,
+            )
+            folder = coll.root
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {len(coll.names)} shapes to {folder} in {time.perf_counter() - t0:.1f} s; inspect with: topomatch data info --data {args.out}", file=sys.stderr)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     parser = _build_parser()
@@ -269,5 +362,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_match(args)
     if args.command == "data":
         return cmd_data(args)
+    if args.command == "report":
+        return cmd_report(args)
+    if args.command == "noise":
+        return cmd_noise(args)
     parser.error(f"unknown command {args.command}")
     return 2

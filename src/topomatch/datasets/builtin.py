@@ -1,210 +1,195 @@
-"""A small built-in benchmark of procedural shapes with exact ground truth and shortcuts.
+"""The built-in synthetic benchmark: a procedural figure in touching poses, made noisy.
 
-Made in about a second with no data files, so that ``topomatch bench`` runs on a fresh
-machine. A closed star-shaped "figure" (a subdivided icosphere with a head, two arms and
-two legs pushed out) is posed by bending its limbs; in some poses a limb is brought
-close to the body and the two nearby surface patches are fused: a small disc is cut
-out of each and the two holes are joined by a strip of triangles, adding a handle (a
-topological shortcut). Vertex orders are shuffled per shape. Ground truth to the null
-shape is exact for every kept vertex; vertices next to a fused region are flagged
-unreliable, as in TOPKIDS. The figure is mirror-symmetric (x -> -x), so every shape
-has an exact left-right symmetry map.
+Made from code alone (no data files), so that ``topomatch bench`` runs on a fresh
+machine. The articulated figure of :mod:`topomatch.datasets.figure` is posed by
+skinning in ten poses where parts touch or interpenetrate (hands on hips, arms
+crossed, knees together, ...); each pose goes through the same topological-noise
+generator as user data (:mod:`topomatch.datasets.noise`): touching parts fuse, interior
+parts vanish, the single outer surface is remeshed to about 5,000 vertices. One pose
+also gets two synthetic shortcuts. Ground truth to the null shape comes from the
+skinning (exact up to the remeshing), with unreliable vertices flagged along fused
+seams; the figure is mirror-symmetric, so every shape has a left-right map.
 
-Shapes: ``syn00`` (null shape), ``syn01``-``syn04`` (train), ``syn05``-``syn08`` (test).
+Shapes: ``syn00`` (null shape, rest pose), ``syn01``-``syn06`` (train),
+``syn07``-``syn10`` (test). Vertex orders are shuffled per shape (``random_state``).
+
+Generation takes about 15-30 s on two cores; the result is cached on disk when a cache
+directory is configured (the command line does), keyed by the arguments and a hash of
+the generator's source files, and memoised in the process.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+import os
+import time
 
 import numpy as np
 from scipy import sparse
-from scipy.spatial import cKDTree
 
+from topomatch import _cache
 from topomatch.datasets.base import Shape, ShapeCollection, ref_matrix
-from topomatch.datasets.toy import icosphere
 from topomatch.mesh import TriangleMesh
-from topomatch.mesh.geometry import boundary_loops, edges_with_counts
-from topomatch.typing import FloatArray, IndexArray
 
-__all__ = ["builtin_benchmark"]
+__all__ = ["BUILTIN_POSES", "builtin_benchmark"]
 
-_LIMBS = {  # direction, length of the protrusion
-    "head": (np.array([0.0, 0.0, 1.0]), 0.7),
-    "arm_r": (np.array([1.0, 0.0, 0.3]), 1.9),
-    "arm_l": (np.array([-1.0, 0.0, 0.3]), 1.9),
-    "leg_r": (np.array([0.3, 0.0, -1.0]), 2.0),
-    "leg_l": (np.array([-0.3, 0.0, -1.0]), 2.0),
+logger = logging.getLogger(__name__)
+
+GENERATOR_VERSION = "builtin-3"
+REFERENCE = "syn00"
+
+BUILTIN_POSES: dict[str, str] = {
+    "syn01": "hands_on_hips",
+    "syn02": "arms_crossed",
+    "syn03": "knees_together",
+    "syn04": "hand_on_shoulder",
+    "syn05": "hands_behind_head",
+    "syn06": "free",  # no contact: two synthetic shortcuts instead
+    "syn07": "hand_on_head",
+    "syn08": "legs_crossed",
+    "syn09": "hands_clasped",
+    "syn10": "thinker",
 }
-_SCALE = np.array([0.8, 0.5, 1.0])
+"""Shape name -> pose of :data:`topomatch.datasets.figure.POSES`."""
+
+_SHORTCUT_SHAPES = {"syn06": 2}
+_TRAIN = [f"syn{i:02d}" for i in range(1, 7)]
+_TEST = [f"syn{i:02d}" for i in range(7, 11)]
+
+_MEMO: dict[tuple, ShapeCollection] = {}
 
 
-def _figure(subdivisions: int) -> tuple[TriangleMesh, dict[str, FloatArray]]:
-    sph = icosphere(subdivisions)
-    v = np.array(sph.vertices)
-    weights = {}
-    r = np.ones(len(v))
-    for name, (d, length) in _LIMBS.items():
-        d = d / np.linalg.norm(d)
-        c = v @ d
-        w = np.clip((c - 0.90) / 0.10, 0.0, 1.0) ** 1.2  # protrusion profile
-        r += length * w
-        weights[name] = np.clip((c - 0.88) / 0.1, 0.0, 1.0)
-    v = v * r[:, None] * _SCALE
-    return TriangleMesh(v, sph.faces, name="syn00"), weights
-
-
-def _rot(axis: FloatArray, angle: float) -> FloatArray:
-    a = axis / np.linalg.norm(axis)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
-
-
-def _pose(v: FloatArray, weights: dict[str, FloatArray], angles: dict[str, float]) -> FloatArray:
-    out = v.copy()
-    for name, ang in angles.items():
-        d, _ = _LIMBS[name]
-        d = d / np.linalg.norm(d)
-        pivot = d * 1.0 * _SCALE
-        axis = np.array([0.0, 1.0, 0.0])  # limbs bend in the frontal plane
-        w = weights[name]
-        for s in np.linspace(0, 1, 8)[1:]:  # blend rotations so the joint bends smoothly
-            m = (w >= s - 1 / 7) & (w < s) if s < 1 else w >= s - 1 / 7
-            R = _rot(axis, ang * s)
-            out[m] = (out[m] - pivot) @ R.T + pivot
-    return out
-
-
-def _ring(faces: IndexArray, seeds: IndexArray, n_vertices: int, rings: int) -> np.ndarray:
-    e, _ = edges_with_counts(faces)
-    a = sparse.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n_vertices,) * 2)
-    m = np.zeros(n_vertices, dtype=bool)
-    m[seeds] = True
-    for _ in range(rings):
-        m = m | (a @ m.astype(float) > 0)
-    return m
-
-
-def _fuse(v: FloatArray, f: IndexArray, limb_w: FloatArray, rings: int) -> tuple[IndexArray, IndexArray, np.ndarray]:
-    """Cut a disc on the limb and one on the body where they are closest, join the holes."""
-    limb = np.flatnonzero(limb_w > 0.9)
-    body = np.flatnonzero(limb_w == 0)
-    d, j = cKDTree(v[body]).query(v[limb])
-    p = limb[int(np.argmin(d))]
-    q = body[j[int(np.argmin(d))]]
-    cut_p = _ring(f, np.array([p]), len(v), rings)
-    cut_q = _ring(f, np.array([q]), len(v), rings)
-    if np.any(cut_p & cut_q):
-        raise RuntimeError("fused patches overlap")
-    inner_p = cut_p & ~_boundary_of(f, cut_p, len(v))
-    inner_q = cut_q & ~_boundary_of(f, cut_q, len(v))
-    drop = np.any(inner_p[f] | inner_q[f], axis=1)
-    f2 = f[~drop]
-    loops = boundary_loops(f2)
-    if len(loops) != 2:
-        raise RuntimeError(f"expected two holes, found {len(loops)}")
-    a, b = loops
-    # zipper: walk A forward and B backward (orientation), advancing whichever is behind
-    # in normalised arc length, so each rung is used once and the strip is a clean tube
-    b = np.roll(b, -int(np.argmin(np.linalg.norm(v[b] - v[a[0]], axis=1))))
-    b = np.r_[b[:1], b[1:][::-1]]  # backward order, starting at the closest vertex
-    ta = _arclength(v, a)
-    tb = _arclength(v, b)
-    m, n = len(a), len(b)
-    i = j = 0
-    new = []
-    while i < m or j < n:
-        if j >= n or (i < m and ta[i + 1] <= tb[j + 1]):
-            new.append([a[(i + 1) % m], a[i], b[j % n]])
-            i += 1
-        else:
-            new.append([b[j], b[(j + 1) % n], a[i % m]])
-            j += 1
-    f3 = np.concatenate([f2, np.asarray(new, dtype=np.int64)])
-    near = _ring(f3, np.r_[a, b], len(v), 2)
-    keep = ~(inner_p | inner_q)
-    return f3, np.flatnonzero(keep), near
-
-
-def _arclength(v: FloatArray, loop: IndexArray) -> FloatArray:
-    """Normalised cumulative length at each loop vertex, closing back to 1, shape (len + 1,)."""
-    seg = np.linalg.norm(v[np.roll(loop, -1)] - v[loop], axis=1)
-    return np.r_[0.0, np.cumsum(seg)] / seg.sum()
-
-
-def _boundary_of(f: IndexArray, region: np.ndarray, n: int) -> np.ndarray:
-    """Vertices of ``region`` that have a neighbour outside it."""
-    outside = _ring(f, np.flatnonzero(~region), n, 1)
-    return region & outside
-
-
-@dataclass(frozen=True)
-class _Spec:
-    name: str
-    angles: dict[str, float]
-    fuse: str | None
-
-
-_SPECS = [  # angles in radians about the y axis (positive lowers the right arm)
-    _Spec("syn01", {"arm_r": -0.5, "leg_l": 0.2}, None),
-    _Spec("syn02", {"arm_l": -1.45, "arm_r": -0.3}, "arm_l"),
-    _Spec("syn03", {"leg_r": -0.3, "head": 0.3}, None),
-    _Spec("syn04", {"arm_r": 1.45, "leg_r": 0.15}, "arm_r"),
-    _Spec("syn05", {"arm_l": -1.5, "leg_l": -0.2}, "arm_l"),
-    _Spec("syn06", {"arm_r": -0.6, "head": -0.25}, None),
-    _Spec("syn07", {"arm_r": 1.5, "arm_l": -0.5}, "arm_r"),
-    _Spec("syn08", {"leg_l": 0.25, "arm_l": 0.4}, None),
-]
-
-
-def builtin_benchmark(subdivisions: int = 4, *, random_state: int = 0) -> ShapeCollection:
-    """Build the built-in benchmark (deterministic for a given ``random_state``).
+def builtin_benchmark(n_vertices: int = 5000, *, random_state: int = 0, n_jobs: int | None = None) -> ShapeCollection:
+    """Build (or load from the cache) the built-in benchmark; deterministic for given arguments.
 
     Parameters
     ----------
-    subdivisions : int
-        Icosphere subdivisions of the figure: 4 gives 2,562 vertices per shape.
+    n_vertices : int
+        Resolution: vertices of the null shape (noisy shapes scale with their area).
     random_state : int
-        Seeds the vertex shuffles.
+        Seeds the shortcuts and the vertex shuffles.
+    n_jobs : int, optional
+        Worker processes for a generation (not for a cache hit); default: two when the
+        machine has two cores or more. The result does not depend on it.
 
     Returns
     -------
     ShapeCollection
-        Reference ``syn00``; splits ``train`` (syn01-04), ``test`` (syn05-08), ``all``.
+        Reference ``syn00``; splits ``train`` (syn01-06), ``test`` (syn07-10) and
+        ``all``. Every shape has ``ref`` (exact-as-possible ground truth to syn00, one
+        entry per vertex), ``sym`` and ``unreliable``.
     """
-    null, weights = _figure(subdivisions)
-    n = null.n_vertices
-    center = null.vertices.mean(axis=0)
-    mirrored = (null.vertices - center) * np.array([-1.0, 1.0, 1.0]) + center
-    dist, sym0 = cKDTree(null.vertices).query(mirrored)
-    sym0 = np.where(dist < 1e-9 * np.ptp(null.vertices), sym0, -1)
-    rng = np.random.default_rng(random_state)
-    shapes: dict[str, Shape] = {
-        "syn00": Shape("syn00", null, ref=sparse.identity(n, dtype=np.int8, format="csr"), sym=sym0.astype(np.int64)),
-    }
-    for spec in _SPECS:
-        v = _pose(np.array(null.vertices), weights, spec.angles)
-        f = np.array(null.faces)
-        keep = np.arange(n)
-        unreliable_full = np.zeros(n, dtype=bool)
-        if spec.fuse is not None:
-            f, keep, unreliable_full = _fuse(v, f, weights[spec.fuse], rings=2)
-        perm = rng.permutation(len(keep))  # new vertex i is old vertex keep[perm[i]]
-        old = keep[perm]
-        new_of_old = np.full(n, -1, dtype=np.int64)
-        new_of_old[old] = np.arange(len(old))
-        faces = new_of_old[f]
-        mesh = TriangleMesh(v[old], faces, name=spec.name)
-        ref = ref_matrix(np.c_[np.arange(len(old)), old], len(old), n)
-        sym_old = sym0[old]
-        sym = np.where(sym_old >= 0, new_of_old[np.maximum(sym_old, 0)], -1)
-        shapes[spec.name] = Shape(spec.name, mesh, ref=ref, sym=sym, unreliable=unreliable_full[old])
-    names = [s.name for s in _SPECS]
-    return ShapeCollection(
+    if isinstance(n_vertices, bool) or not isinstance(n_vertices, int | np.integer) or n_vertices < 500:
+        raise ValueError(f"n_vertices must be an integer >= 500, got {n_vertices!r}")
+    if isinstance(random_state, bool) or not isinstance(random_state, int | np.integer):
+        raise TypeError(f"random_state must be an int, got {type(random_state).__name__}")
+    memo_key = (int(n_vertices), int(random_state))
+    if memo_key in _MEMO:
+        return _MEMO[memo_key]
+    key = _cache.array_hash(np.array([n_vertices, random_state]), extra=GENERATOR_VERSION + _source_digest())
+    stored = _cache.load("builtin", key)
+    if stored is not None:
+        try:
+            shapes = _unpack(stored)
+        except (KeyError, ValueError) as err:
+            logger.warning("ignoring a broken cached built-in benchmark (%s)", err)
+            shapes = None
+    else:
+        shapes = None
+    if shapes is None:
+        t0 = time.perf_counter()
+        if n_jobs is None:
+            n_jobs = min(2, os.cpu_count() or 1)
+        shapes = _generate(int(n_vertices), int(random_state), int(n_jobs))
+        logger.info("built-in benchmark generated in %.1f s", time.perf_counter() - t0)
+        _cache.save("builtin", key, _pack(shapes))
+    coll = ShapeCollection(
         name="builtin",
-        reference="syn00",
+        reference=REFERENCE,
         loaders={k: (lambda s=s: s) for k, s in shapes.items()},
-        splits={"train": names[:4], "test": names[4:], "all": names},
+        splits={"train": list(_TRAIN), "test": list(_TEST), "all": [*_TRAIN, *_TEST]},
         missing=[],
         root=None,
     )
+    _MEMO[memo_key] = coll
+    return coll
+
+
+def _source_digest() -> str:
+    """Hash of the generator's source files: any change to them invalidates cached data."""
+    import hashlib
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in ("builtin.py", "figure.py", "noise.py", "_surface.py", "_isosurface.py", "_noise_kernels.py"):
+        try:
+            h.update((here / name).read_bytes())
+        except OSError:  # e.g. a zipped install: fall back to the version string alone
+            h.update(name.encode())
+    return h.hexdigest()[:16]
+
+
+def _generate(n_vertices: int, random_state: int, n_jobs: int = 1) -> dict[str, Shape]:
+    from topomatch.datasets.figure import build_figure
+    from topomatch.datasets.noise import NoiseParams, noisy_collection
+
+    rng = np.random.default_rng(random_state)
+    fig = build_figure(2 * n_vertices)
+    poses = {name: fig.pose(pose) for name, pose in BUILTIN_POSES.items()}
+    params = NoiseParams(n_vertices=n_vertices)
+    pose_params = {name: NoiseParams(n_vertices=n_vertices, shortcuts=k) for name, k in _SHORTCUT_SHAPES.items()}
+    coll = noisy_collection(
+        fig.mesh.vertices, fig.mesh.faces, poses, params, pose_params=pose_params, template_sym=fig.sym,
+        null_vertices=n_vertices, reference=REFERENCE, name="builtin", random_state=rng, n_jobs=n_jobs,
+    )
+    shapes = {name: coll[name] for name in [REFERENCE, *BUILTIN_POSES]}
+    return _shuffle(shapes, rng)
+
+
+def _shuffle(shapes: dict[str, Shape], rng: np.random.Generator) -> dict[str, Shape]:
+    """Permute every shape's vertices (the null shape's too, with the references)."""
+    perms = {name: rng.permutation(s.n_vertices) for name, s in shapes.items()}  # new i <- old perm[i]
+    inv = {name: np.argsort(p) for name, p in perms.items()}
+    ref_inv = inv[REFERENCE]
+    n_ref = shapes[REFERENCE].n_vertices
+    out = {}
+    for name, s in shapes.items():
+        p, q = perms[name], inv[name]
+        mesh = TriangleMesh(s.mesh.vertices[p], q[s.mesh.faces], name=name)
+        ref_old = s.ref_p2p[p]
+        ref = ref_matrix(np.c_[np.arange(len(p)), ref_inv[ref_old]], len(p), n_ref)
+        sym = None if s.sym is None else np.where(s.sym[p] >= 0, q[np.maximum(s.sym[p], 0)], -1)
+        unrel = None if s.unreliable is None else s.unreliable[p]
+        out[name] = Shape(name, mesh, ref=ref, sym=sym, unreliable=unrel)
+    return out
+
+
+def _pack(shapes: dict[str, Shape]) -> dict[str, np.ndarray]:
+    arrays: dict[str, np.ndarray] = {"names": np.array(list(shapes))}
+    for name, s in shapes.items():
+        arrays[f"{name}.vertices"] = s.mesh.vertices
+        arrays[f"{name}.faces"] = s.mesh.faces
+        arrays[f"{name}.ref"] = s.ref_p2p
+        arrays[f"{name}.sym"] = np.full(s.n_vertices, -1) if s.sym is None else s.sym
+        arrays[f"{name}.unreliable"] = np.zeros(s.n_vertices, bool) if s.unreliable is None else s.unreliable
+    return arrays
+
+
+def _unpack(arrays: dict[str, np.ndarray]) -> dict[str, Shape]:
+    names = [str(n) for n in arrays["names"]]
+    if REFERENCE not in names:
+        raise ValueError("no reference shape")
+    n_ref = len(arrays[f"{REFERENCE}.vertices"])
+    out = {}
+    for name in names:
+        mesh = TriangleMesh(arrays[f"{name}.vertices"], arrays[f"{name}.faces"], name=name)
+        n = mesh.n_vertices
+        if name == REFERENCE:
+            ref = sparse.identity(n, dtype=np.int8, format="csr")
+            unrel = None
+        else:
+            ref = ref_matrix(np.c_[np.arange(n), arrays[f"{name}.ref"]], n, n_ref)
+            unrel = arrays[f"{name}.unreliable"].astype(bool)
+        out[name] = Shape(name, mesh, ref=ref, sym=arrays[f"{name}.sym"].astype(np.int64), unreliable=unrel)
+    return out

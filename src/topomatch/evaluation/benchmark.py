@@ -60,6 +60,10 @@ class BenchmarkConfig:
         Worker processes.
     random_state : int
         Passed to every matcher that takes one (and to the built-in data).
+    max_pairs : int, optional
+        Score at most this many pairs per protocol: an evenly spaced, deterministic subset
+        of the protocol's ordered pair list (for expensive methods, e.g. at high res).
+        Summaries then state ``n_pairs`` honestly; ``None`` runs every pair.
     """
 
     dataset: str = "builtin"
@@ -74,6 +78,7 @@ class BenchmarkConfig:
     jobs: int = 1
     random_state: int = 0
     external: bool = False
+    max_pairs: int | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` on unknown names."""
@@ -93,9 +98,19 @@ class BenchmarkConfig:
             raise ValueError(f"split must be train, test or all, got {self.split!r}")
         if self.jobs < 1:
             raise ValueError("jobs must be >= 1")
+        if self.max_pairs is not None and (isinstance(self.max_pairs, bool) or int(self.max_pairs) < 1):
+            raise ValueError(f"max_pairs must be a positive integer, got {self.max_pairs!r}")
 
 
 _COLLECTIONS: dict[str, ShapeCollection] = {}
+
+
+def subset_pairs(pairs: list[PairSpec], max_pairs: int) -> list[PairSpec]:
+    """An evenly spaced, deterministic subset of at most ``max_pairs`` pairs (order kept)."""
+    if len(pairs) <= max_pairs:
+        return list(pairs)
+    idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, int(max_pairs))).astype(np.int64))
+    return [pairs[i] for i in idx]
 
 
 def load_collection(config: BenchmarkConfig) -> ShapeCollection:
@@ -166,15 +181,23 @@ def _fit(config: BenchmarkConfig, matcher: Matcher, collection: ShapeCollection)
     return time.perf_counter() - t0
 
 
-def _match_task(config: BenchmarkConfig, run_path: str, method: str, matcher: Matcher, pair_id: str) -> tuple[str, str, str]:
-    """Run one pair in a worker; store the map or the failure. Returns (method, pair, status)."""
+def _match_task(
+    config: BenchmarkConfig, run_path: str, method: str, matcher: Matcher, pair_id: str, meshes: tuple | None = None
+) -> tuple[str, str, str]:
+    """Run one pair (in a worker); store the map or the failure. Returns (method, pair, status).
+
+    ``meshes`` = (source, target) when given; otherwise they are loaded from the dataset
+    in this process (cheap for files, and their caches then serve later pairs).
+    """
     run = RunDir(run_path)
-    collection = load_collection(config)
     pair = PairSpec.from_id(pair_id)
     t0 = time.perf_counter()
     try:
-        source = collection[pair.source].mesh
-        target = collection[pair.target].mesh
+        if meshes is None:
+            collection = load_collection(config)
+            source, target = collection[pair.source].mesh, collection[pair.target].mesh
+        else:
+            source, target = meshes
         with PeakMemory() as mem:
             t0 = time.perf_counter()
             corr = matcher.match(source, target)
@@ -192,6 +215,18 @@ def _match_task(config: BenchmarkConfig, run_path: str, method: str, matcher: Ma
         return method, pair_id, "error"
 
 
+def _ship(config: BenchmarkConfig, collection: ShapeCollection, pair_id: str) -> tuple | None:
+    """Meshes to send to a worker, or ``None`` to let the worker read them.
+
+    Generated datasets travel (regenerating them in every worker costs tens of
+    seconds); file datasets are read by the worker itself.
+    """
+    if config.dataset != "builtin":
+        return None
+    pair = PairSpec.from_id(pair_id)
+    return collection[pair.source].mesh, collection[pair.target].mesh
+
+
 def _progress(total: int, desc: str, enabled: bool):
     from tqdm.auto import tqdm
 
@@ -205,6 +240,7 @@ def run_benchmark(
     progress: bool = True,
     retry_failed: bool = False,
     on_event: Callable[[str], None] | None = None,
+    dask_scheduler: str | None = None,
 ) -> dict:
     """Run (or resume) a benchmark into the run directory ``out``.
 
@@ -220,6 +256,10 @@ def run_benchmark(
         Re-run pairs recorded as failed.
     on_event : callable, optional
         Receives one-line status messages (the CLI prints them).
+    dask_scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``): pairs are matched and
+        scored on its workers (``pip install "topomatch[dask]"``; every worker needs
+        topomatch and the data at the same path). ``config.jobs`` is ignored then.
 
     Returns
     -------
@@ -227,6 +267,8 @@ def run_benchmark(
         The summary (also written to ``summary.json``).
     """
     config.validate()
+    if dask_scheduler is not None:
+        return _run_on_dask(config, out, dask_scheduler, progress=progress, retry_failed=retry_failed, on_event=on_event)
     say = on_event or (lambda s: logger.info("%s", s))
     run = RunDir(out)
     run.path.mkdir(parents=True, exist_ok=True)
@@ -248,7 +290,10 @@ def run_benchmark(
     pair_sets = {p.name: p.pairs(collection, config.split) for p in protocols}
     for p in protocols:
         exp = p.expected_pairs(collection, config.split)
-        if len(pair_sets[p.name]) < exp:
+        if config.max_pairs is not None and len(pair_sets[p.name]) > config.max_pairs:
+            pair_sets[p.name] = subset_pairs(pair_sets[p.name], config.max_pairs)
+            say(f"{p.name}: {config.max_pairs} of {exp} pairs (evenly spaced subset, --max-pairs)")
+        elif len(pair_sets[p.name]) < exp:
             say(f"{p.name}: {len(pair_sets[p.name])} of {exp} pairs present ({'; '.join(collection.missing[:3])}...)")
     all_pairs = list(dict.fromkeys(pr.id for prs in pair_sets.values() for pr in prs))
     manifest = {
@@ -288,8 +333,8 @@ def run_benchmark(
         if config.jobs > 1 and len(todo) > 1:
             from joblib import Parallel, delayed
 
-            gen = Parallel(n_jobs=config.jobs, return_as="generator_unordered")(
-                delayed(_match_task)(config, str(run.path), method, matcher, pid) for pid in todo
+            gen = Parallel(n_jobs=config.jobs, return_as="generator")(
+                delayed(_match_task)(config, str(run.path), method, matcher, pid, _ship(config, collection, pid)) for pid in todo
             )
             for _ in gen:
                 bar.update(1)
@@ -306,6 +351,22 @@ def run_benchmark(
     manifest["wall_seconds_this_session"] = time.perf_counter() - t_start
     write_json(run.path / "manifest.json", manifest)
     return summary
+
+
+def _run_on_dask(config: BenchmarkConfig, out: str | os.PathLike[str], address: str, **kw: Any) -> dict:
+    """Run through joblib's Dask backend on an existing cluster."""
+    try:
+        from dask.distributed import Client
+    except ImportError as err:
+        raise ValueError('the Dask backend needs dask.distributed: pip install "topomatch[dask]"') from err
+    from dataclasses import replace
+
+    import joblib
+
+    with Client(address) as client:
+        n_workers = max(1, sum(client.nthreads().values()))
+        with joblib.parallel_config(backend="dask"):
+            return run_benchmark(replace(config, jobs=max(2, n_workers)), out, **kw)
 
 
 def score_stored_maps(run: RunDir, config: BenchmarkConfig, collection: ShapeCollection, protocols: list, pair_sets: dict, say: Callable[[str], None]) -> None:

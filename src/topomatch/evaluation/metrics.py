@@ -20,8 +20,8 @@ __all__ = [
     "auc",
     "cumulative_curve",
     "error_queries",
-    "reduce_min",
     "pointwise_errors",
+    "reduce_min",
 ]
 
 SHREC16_THRESHOLDS = np.round(np.arange(26) * 0.01, 10)

@@ -30,8 +30,6 @@ from dataclasses import dataclass, field
 from itertools import permutations
 from typing import Literal
 
-import numpy as np
-
 from topomatch.datasets.base import ShapeCollection
 from topomatch.evaluation.metrics import SHREC16_THRESHOLDS
 from topomatch.mesh.geodesics import GeodesicKind

@@ -17,7 +17,13 @@ import numpy as np
 
 from topomatch import _cache
 from topomatch.datasets.base import Shape, ShapeCollection, ground_truth_21
-from topomatch.evaluation.metrics import area_matched, auc, cumulative_curve, error_queries, reduce_min
+from topomatch.evaluation.metrics import (
+    area_matched,
+    auc,
+    cumulative_curve,
+    error_queries,
+    reduce_min,
+)
 from topomatch.evaluation.protocols import PairSpec, Protocol
 from topomatch.mesh.geodesics import GeodesicKind, make_geodesic_solver
 from topomatch.typing import FloatArray, IndexArray
@@ -134,7 +140,7 @@ def _score_group(
     va = source.mesh.vertex_areas
     for (method, _), variants in by_job.items():
         scored = {}
-        for name, (pair, target, p2p, gt, err) in variants.items():
+        for name, (_, _, _, gt, err) in variants.items():
             curve = cumulative_curve(err, protocol.thresholds)
             scored[name] = (auc(curve, protocol.thresholds), curve, err, gt)
         use = "direct"

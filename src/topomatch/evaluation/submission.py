@@ -10,7 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from topomatch.evaluation.benchmark import BenchmarkConfig, build_summary, load_collection, resolve_protocols, score_stored_maps
+from topomatch.evaluation.benchmark import (
+    BenchmarkConfig,
+    build_summary,
+    load_collection,
+    resolve_protocols,
+    score_stored_maps,
+)
 from topomatch.evaluation.rundir import RunDir, write_json
 from topomatch.io import read_p2p, read_shrec16_map
 from topomatch.typing import IndexArray, PathType

@@ -18,7 +18,16 @@ from topomatch.io.correspondences import (
     write_sym,
     write_vts,
 )
-from topomatch.io.meshes import read_mesh, read_obj, read_off, read_ply, write_mesh, write_obj, write_off, write_ply
+from topomatch.io.meshes import (
+    read_mesh,
+    read_obj,
+    read_off,
+    read_ply,
+    write_mesh,
+    write_obj,
+    write_off,
+    write_ply,
+)
 
 __all__ = [
     "read_indmap",

@@ -1,5 +1,4 @@
-"""Correspondence files: TOPKIDS ``_ref`` / ``_sym`` / ``_indmap``, ``.vts``, plain maps and
-the SHREC'16 submission format.
+"""Correspondence files: TOPKIDS ground truth, ``.vts``, plain maps, SHREC'16 submissions.
 
 On disk every index is one-based (as in the TOPKIDS release and MATLAB tooling); in memory
 every index is zero-based and ``-1`` means "none" (no match, no symmetric partner).

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from topomatch.typing import FloatArray, IndexArray
+from topomatch.typing import FloatArray
 
 __all__ = ["nearest_neighbors"]
 

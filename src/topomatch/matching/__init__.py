@@ -10,13 +10,16 @@ from typing import Any
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
 from topomatch.matching.descriptor_nn import DescriptorNNMatcher
 from topomatch.matching.fmap import FunctionalMapMatcher
-from topomatch.matching.oracle import OracleMatcher
+from topomatch.matching.oracle import MirroredOracleMatcher, OracleMatcher
+from topomatch.matching.random_map import RandomMatcher
 from topomatch.matching.zoomout import ZoomOutMatcher
 
 __all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
 
 MATCHERS: dict[str, type[Matcher]] = {
     "oracle": OracleMatcher,
+    "oracle-mirror": MirroredOracleMatcher,
+    "random": RandomMatcher,
     "descriptor-nn": DescriptorNNMatcher,
     "fmap": FunctionalMapMatcher,
     "zoomout": ZoomOutMatcher,

@@ -10,7 +10,7 @@ from topomatch.datasets.base import Shape
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
 from topomatch.mesh import TriangleMesh
 
-__all__ = ["OracleMatcher"]
+__all__ = ["MirroredOracleMatcher", "OracleMatcher"]
 
 
 class OracleMatcher(Matcher):
@@ -57,3 +57,17 @@ class OracleMatcher(Matcher):
         has = np.diff(g.indptr) > 0
         p2p[has] = g.indices[g.indptr[:-1][has]]
         return Correspondence(p2p, info={"uses_ground_truth": True})
+
+
+class MirroredOracleMatcher(OracleMatcher):
+    """The symmetric solution (the ground truth's left-right mirror), for scorer checks.
+
+    Under ``shrec16`` with symmetric solutions accepted it must score AUC 1; without,
+    clearly less.
+    """
+
+    name = "oracle-mirror"
+    ground_truth_note = "mirrored ground truth"
+
+    def __init__(self, *, mirrored: bool = True) -> None:
+        self.mirrored = mirrored

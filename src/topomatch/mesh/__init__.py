@@ -8,7 +8,12 @@ from topomatch.mesh.geodesics import (
     HeatGeodesicSolver,
     make_geodesic_solver,
 )
-from topomatch.mesh.laplacian import cotangent_laplacian, gradient_operator, laplacian, robust_laplacian
+from topomatch.mesh.laplacian import (
+    cotangent_laplacian,
+    gradient_operator,
+    laplacian,
+    robust_laplacian,
+)
 from topomatch.mesh.mesh import TriangleMesh
 from topomatch.mesh.sampling import farthest_point_sampling
 from topomatch.mesh.spectral import Eigenbasis, SparseCholesky, laplacian_eigenbasis

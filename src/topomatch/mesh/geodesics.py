@@ -283,7 +283,7 @@ def clean_for_exact(vertices: FloatArray, faces: IndexArray) -> tuple[IndexArray
         keep = np.zeros(len(F), dtype=bool)
         keep[first] = True
         keep &= ~fin
-        n_fin = int(len(np.unique(inv[fin])))
+        n_fin = len(np.unique(inv[fin]))
         n_dup = int((cnt > 1).sum()) - n_fin
         if n_dup:
             notes.append(f"{n_dup} duplicated face(s) reduced to one copy")
@@ -350,7 +350,23 @@ class ExactGeodesicSolver(GeodesicSolver):
                 f"{len(lone)} vertex(es) left in no face use their nearest vertex plus the Euclidean gap"
             )
         self._labels = labels[self._proxy]
-        self._alg = geodesic.PyGeodesicAlgorithmExact(V, np.ascontiguousarray(F, dtype=np.int32))
+        # the MMP code wants every vertex in a face: solve on the compacted mesh
+        kept = np.flatnonzero(labels >= 0)
+        self._compact = np.full(len(V), -1, dtype=np.int64)
+        self._compact[kept] = np.arange(len(kept))
+        self._kept = kept
+        self._alg = geodesic.PyGeodesicAlgorithmExact(V[kept], np.ascontiguousarray(self._compact[F], dtype=np.int32))
+
+    def _run(self, source: int, targets: IndexArray | None) -> FloatArray:
+        """Distances on the compact mesh from one (compact) source to targets (or all)."""
+        src = np.array([self._compact[self._proxy[source]]], dtype=np.int32)
+        tgt = None if targets is None else np.ascontiguousarray(targets, dtype=np.int32)
+        res = self._alg.geodesicDistances(src, tgt)
+        if res is None:
+            raise RuntimeError("the exact geodesic code rejected the mesh")
+        d = np.asarray(res[0], dtype=np.float64)
+        d[d > 1e300] = np.inf
+        return d
 
     def batch_size(self) -> int:  # noqa: D102
         return 16
@@ -359,9 +375,8 @@ class ExactGeodesicSolver(GeodesicSolver):
         s = np.asarray(sources, dtype=np.int64)
         out = np.empty((len(s), self.n_vertices))
         for i, src in enumerate(s):
-            d, _ = self._alg.geodesicDistances(np.array([self._proxy[src]], dtype=np.int32), None)
-            d[d > 1e300] = np.inf
-            out[i] = d[self._proxy] + self._offset + self._offset[src]
+            d = self._run(int(src), None)  # (n_kept,)
+            out[i] = d[self._compact[self._proxy]] + self._offset + self._offset[src]
             out[i, src] = 0.0
         return out
 
@@ -380,10 +395,8 @@ class ExactGeodesicSolver(GeodesicSolver):
             same = self._labels[tgt] == self._labels[src]
             res = np.full(len(sel), np.inf)
             if np.any(same):
-                t_u, t_inv = np.unique(self._proxy[tgt[same]], return_inverse=True)
-                d, _ = self._alg.geodesicDistances(
-                    np.array([self._proxy[src]], dtype=np.int32), t_u.astype(np.int32)
-                )
+                t_u, t_inv = np.unique(self._compact[self._proxy[tgt[same]]], return_inverse=True)
+                d = self._run(int(src), t_u)
                 res[same] = d[t_inv.ravel()] + self._offset[tgt[same]] + self._offset[src]
             res[tgt == src] = 0.0
             out[sel] = res

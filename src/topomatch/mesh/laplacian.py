@@ -117,9 +117,22 @@ def robust_laplacian(vertices: FloatArray, faces: IndexArray, mollify_factor: fl
 
 
 def laplacian(vertices: FloatArray, faces: IndexArray, kind: LaplacianKind = "robust") -> tuple[sparse.csc_matrix, sparse.dia_matrix]:
-    """Stiffness and mass of the requested kind (``"robust"`` or ``"cotan"``)."""
+    """Stiffness and mass of the requested kind (``"robust"`` or ``"cotan"``).
+
+    Vertices that belong to no face get a zero row, column and mass, whatever the
+    backend does with them, so that they drop out of eigenproblems.
+    """
     if kind == "robust":
-        return robust_laplacian(vertices, faces)
-    if kind == "cotan":
-        return cotangent_laplacian(vertices, faces)
-    raise ValueError(f"unknown Laplacian kind {kind!r}; expected 'robust' or 'cotan'")
+        L, M = robust_laplacian(vertices, faces)
+    elif kind == "cotan":
+        L, M = cotangent_laplacian(vertices, faces)
+    else:
+        raise ValueError(f"unknown Laplacian kind {kind!r}; expected 'robust' or 'cotan'")
+    used = np.zeros(len(vertices), dtype=bool)
+    used[np.asarray(faces).ravel()] = True
+    if not np.all(used):
+        keep = sparse.diags(used.astype(np.float64))
+        L = (keep @ L @ keep).tocsc()
+        L.eliminate_zeros()
+        M = sparse.diags(np.where(used, M.diagonal(), 0.0))
+    return L, M

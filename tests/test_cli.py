@@ -1,0 +1,64 @@
+import json
+
+import numpy as np
+import pytest
+
+from topomatch.cli import main
+from topomatch.io import read_p2p, write_mesh, write_p2p
+
+from .conftest import DATA
+
+
+def test_bench_builtin_prints_table(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("TOPOMATCH_DATA", raising=False)
+    monkeypatch.setenv("TOPOMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    rc = main(["bench", "--out", str(tmp_path / "run"), "--method", "oracle", "--protocol", "shrec16", "--quiet"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "oracle (uses ground truth)" in out and "1.000" in out
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["methods"]["oracle"]["shrec16"]["auc_mean"] == 1.0
+    assert (tmp_path / "run" / "report" / "table1.tex").is_file()
+    assert (tmp_path / "run" / "report" / "report.html").is_file()
+
+
+def test_bench_rejects_bad_data_dir(tmp_path, capsys):
+    rc = main(["bench", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "r"), "--quiet"])
+    assert rc == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_match_writes_a_map(tmp_path, small_sphere):
+    write_mesh(tmp_path / "a.off", small_sphere.vertices, small_sphere.faces)
+    write_mesh(tmp_path / "b.ply", small_sphere.vertices, small_sphere.faces)
+    rc = main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.ply"), "--out", str(tmp_path / "m.txt"), "--param", "k=30", "--param", "n_descriptors=20"])
+    assert rc == 0
+    p = read_p2p(tmp_path / "m.txt", small_sphere.n_vertices, small_sphere.n_vertices)
+    assert p.min() >= 0
+    assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.ply"), "--out", str(tmp_path / "m.npy")]) == 0
+    assert np.load(tmp_path / "m.npy").shape == (small_sphere.n_vertices,)
+    assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "missing.off"), "--out", str(tmp_path / "x.txt")]) == 2
+
+
+@pytest.mark.data
+def test_evaluate_a_submission_folder(tmp_path, topkids_low, capsys):
+    """Write the ground truth for two pairs as files, score them; the rest are reported missing."""
+    from topomatch.datasets.base import ground_truth_21
+    from topomatch.evaluation.protocols import get_protocol
+
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    for pr in get_protocol("topkids25").pairs(topkids_low, "test")[:2]:
+        g = ground_truth_21(topkids_low[pr.target], topkids_low[pr.source])
+        write_p2p(sub / f"{pr.target}_{pr.source}.txt", g.indices[g.indptr[:-1]])
+    rc = main(["evaluate", str(sub), "--protocol", "topkids25", "--split", "test", "--data", str(DATA), "--out", str(tmp_path / "ev"), "--geodesic", "heat", "--quiet"])
+    assert rc == 0
+    s = json.loads((tmp_path / "ev" / "summary.json").read_text())["methods"]["submission"]["topkids25"]
+    assert s["n_pairs"] == 2 and s["n_failed"] == 8 and s["mean_error"]["heat"] == 0.0
+
+
+@pytest.mark.data
+def test_data_info(capsys):
+    rc = main(["data", "info", "--data", str(DATA), "--resolution", "low"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "kid25" in out and "low res" in out

@@ -1,0 +1,100 @@
+import numpy as np
+import pytest
+from scipy import sparse
+
+from topomatch.datasets.toy import icosphere
+from topomatch.mesh import (
+    TriangleMesh,
+    cotangent_laplacian,
+    gradient_operator,
+    laplacian_eigenbasis,
+    robust_laplacian,
+)
+
+
+def test_right_triangle_cotan_exact():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    f = np.array([[0, 1, 2]])
+    L, M = cotangent_laplacian(v, f)
+    # angles: 90 at 0, 45 at 1 and 2 -> weights: edge(1,2) cot90/2 = 0, edges (0,1),(0,2): cot45/2 = 0.5
+    expected = np.array([[1.0, -0.5, -0.5], [-0.5, 0.5, 0.0], [-0.5, 0.0, 0.5]])
+    np.testing.assert_allclose(L.toarray(), expected, atol=1e-12)
+    np.testing.assert_allclose(M.diagonal(), [1 / 6] * 3)
+
+
+def test_cotan_equals_gradient_identity(sphere):
+    L, _ = cotangent_laplacian(sphere.vertices, sphere.faces)
+    G, area = gradient_operator(sphere.vertices, sphere.faces)
+    L2 = G.T @ sparse.diags(np.repeat(area, 3)) @ G
+    assert abs(L - L2).max() < 1e-10
+    # gradient of a linear function is its constant gradient
+    gx = (G @ sphere.vertices[:, 0]).reshape(-1, 3)
+    n = sphere.face_normals
+    np.testing.assert_allclose(gx, np.array([1.0, 0, 0]) - n[:, :1] * n, atol=1e-10)
+
+
+@pytest.mark.parametrize("kind", ["robust", "cotan"])
+def test_laplacian_properties(sphere, kind):
+    L, M = sphere.laplacian(kind)
+    assert abs(L - L.T).max() < 1e-10
+    np.testing.assert_allclose(np.asarray(L.sum(axis=1)).ravel(), 0, atol=1e-10)
+    assert np.all(M.diagonal() > 0)
+    assert M.diagonal().sum() == pytest.approx(sphere.area, rel=1e-6)
+
+
+def test_robust_matches_cotan_on_delaunay_mesh(sphere):
+    Lr, _ = robust_laplacian(sphere.vertices, sphere.faces)
+    Lc, _ = cotangent_laplacian(sphere.vertices, sphere.faces)
+    assert sparse.linalg.norm(Lr - Lc) / sparse.linalg.norm(Lc) < 0.02
+
+
+def test_sphere_spectrum():
+    m = icosphere(4)
+    b = m.eigenbasis(16)
+    # unit sphere: l(l+1) with multiplicity 2l+1 -> 0, 2 (x3), 6 (x5), 12 (x7)
+    expected = np.repeat([0, 2, 6, 12], [1, 3, 5, 7])
+    np.testing.assert_allclose(b.evals, expected, rtol=0.02, atol=1e-6)
+    gram = b.evecs.T @ (b.mass[:, None] * b.evecs)
+    np.testing.assert_allclose(gram, np.eye(16), atol=1e-8)
+
+
+def test_eigenbasis_is_deterministic_and_sliced(small_sphere):
+    m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
+    b20 = m.eigenbasis(20)
+    b10 = m.eigenbasis(10)
+    np.testing.assert_array_equal(b10.evecs, b20.evecs[:, :10])
+    fresh = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(20)
+    np.testing.assert_array_equal(fresh.evals, b20.evals)
+    np.testing.assert_array_equal(fresh.evecs, b20.evecs)
+    with pytest.raises(ValueError, match="1 <= k"):
+        laplacian_eigenbasis(*m.laplacian(), k=10_000)
+
+
+def test_eigenbasis_disk_cache(tmp_path, small_sphere, monkeypatch):
+    from topomatch import _cache
+
+    monkeypatch.setattr(_cache, "_CACHE_DIR", tmp_path)
+    m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
+    b = m.eigenbasis(12)
+    files = list((tmp_path / "eigen").glob("*.npz"))
+    assert len(files) == 1
+    again = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(12)
+    np.testing.assert_array_equal(again.evecs, b.evecs)
+    files[0].write_bytes(b"corrupt")  # a corrupt entry is ignored and recomputed
+    third = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(12)
+    np.testing.assert_allclose(third.evals, b.evals)
+
+
+def test_unreferenced_vertex_gets_zero(small_sphere):
+    v = np.vstack([small_sphere.vertices, [[3.0, 3, 3]]])
+    m = TriangleMesh(v, small_sphere.faces)
+    b = m.eigenbasis(8)
+    assert np.all(b.evecs[-1] == 0)
+    assert b.evals[1] > 1e-3  # no spurious zero eigenvalue from the lone vertex
+
+
+def test_projection_round_trip(sphere):
+    b = sphere.eigenbasis(25)
+    f = b.evecs @ np.arange(25.0)
+    np.testing.assert_allclose(b.project(f), np.arange(25.0), atol=1e-8)
+    np.testing.assert_allclose(b.reconstruct(b.project(f)), f, atol=1e-8)

@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+
+from topomatch.datasets.toy import grid, icosphere, torus
+from topomatch.mesh import TriangleMesh
+from topomatch.mesh import geometry as g
+
+
+def test_single_triangle_geometry():
+    m = TriangleMesh([[0, 0, 0], [2, 0, 0], [0, 3, 0]], [[0, 1, 2]])
+    assert m.area == pytest.approx(3.0)
+    np.testing.assert_allclose(m.vertex_areas, [1, 1, 1])
+    np.testing.assert_allclose(m.face_normals, [[0, 0, 1]])
+    assert len(m.boundary_loops) == 1 and sorted(m.boundary_loops[0]) == [0, 1, 2]
+    assert m.euler_characteristic == 1 and m.genus == 0
+
+
+@pytest.mark.parametrize(("mesh", "genus", "loops", "chi"), [(icosphere(2), 0, 0, 2), (torus(20, 10), 1, 0, 0), (grid(6), 0, 1, 1)])
+def test_topology(mesh, genus, loops, chi):
+    assert mesh.genus == genus
+    assert len(mesh.boundary_loops) == loops
+    assert mesh.euler_characteristic == chi
+    assert mesh.n_components == 1
+    assert mesh.is_manifold
+
+
+def test_sphere_area_and_normals():
+    m = icosphere(4)
+    assert m.area == pytest.approx(4 * np.pi, rel=2e-3)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", m.vertex_normals, m.vertices), 1.0, atol=1e-3)
+
+
+def test_arrays_are_read_only_and_copied():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    m = TriangleMesh(v, [[0, 1, 2]])
+    v[0, 0] = 5.0
+    assert m.vertices[0, 0] == 0.0
+    with pytest.raises(ValueError):
+        m.vertices[0, 0] = 1.0
+
+
+@pytest.mark.parametrize(
+    ("v", "f", "match"),
+    [
+        ([[0, 0], [1, 1]], [[0, 1, 1]], r"shape \(n_vertices, 3\)"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], "index out of range"),
+        ([[0, 0, 0], [1, 0, 0], [0, np.nan, 0]], [[0, 1, 2]], "non-finite"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1]], r"shape \(n_faces, 3\)"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.zeros((0, 3), int), "at least one face"),
+    ],
+)
+def test_bad_input(v, f, match):
+    with pytest.raises(ValueError, match=match):
+        TriangleMesh(v, f)
+
+
+def test_non_manifold_duplicate_and_components():
+    s = icosphere(1)
+    # a fin: the same triangle twice with opposite orientations, plus a second component
+    f0 = s.faces[0]
+    extra_v = s.vertices[:3] + 5.0
+    v = np.vstack([s.vertices, extra_v, [[9.0, 9.0, 9.0]]])
+    n = len(s.vertices)
+    f = np.vstack([s.faces, f0[::-1], [[n, n + 1, n + 2]]])
+    m = TriangleMesh(v, f)
+    assert len(m.duplicate_faces) == 1
+    assert len(m.non_manifold_edges) == 3
+    assert m.n_components == 2
+    assert list(m.unreferenced_vertices) == [n + 3]
+    np.testing.assert_array_equal(np.unique(m.component_labels), [-1, 0, 1])
+    info = m.summary()
+    assert info["duplicate_faces"] == 1 and info["unreferenced_vertices"] == 1
+
+
+def test_boundary_loops_of_annulus():
+    m = grid(7)
+    v, f = np.array(m.vertices), np.array(m.faces)
+    centre = np.linalg.norm(v[f].mean(axis=1) - [0.5, 0.5, 0], axis=1) < 0.2
+    a = TriangleMesh(v, f[~centre])
+    loops = a.boundary_loops
+    assert len(loops) == 2
+    assert a.genus == 0 and a.euler_characteristic == 0
+    # each boundary edge appears in exactly one loop
+    be = g.boundary_edges(a.faces)
+    assert sum(len(lp) for lp in loops) == len(be)
