@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _fmap_shapes import bumpy, mirrored, shuffled
 from topomatch.maps import (
     FmapWeights,
     compose_p2p,
@@ -23,6 +22,8 @@ from topomatch.maps import (
 from topomatch.matching import make_matcher
 from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
+
+from ._fmap_shapes import bumpy, mirrored, shuffled
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _fmap_shapes import bumpy, shuffled
 from topomatch.maps import fmap_from_p2p, zoomout, zoomout_schedule
 from topomatch.matching import make_matcher
 from topomatch.mesh import farthest_point_sampling
+
+from ._fmap_shapes import bumpy, shuffled
 
 
 def test_schedule():

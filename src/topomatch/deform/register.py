@@ -201,6 +201,8 @@ class GraphDeformation:
     def update_positions(self, pairs: DataPairs, *, alpha: float, mu_point: float = 1.0, mu_plane: float = 0.0) -> None:
         """Linear step: node positions minimising the energy for fixed rotations."""
         m = self.graph.n_nodes
+        if len(pairs.source) == 0 or not float(pairs.weights.sum()) > 0:
+            return  # no data (e.g. every closest pair had incompatible normals): keep the state
         wl = self._link_weights()
         # regulariser: sum over directed links of w ||g_b - g_a - d_ab||^2
         d = np.einsum("kab,kb->ka", self.rotations[self._dir_a], self._dir_rest)

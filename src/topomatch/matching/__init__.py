@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
+from topomatch.matching.deform import DeformMatcher
 from topomatch.matching.descriptor_nn import DescriptorNNMatcher
 from topomatch.matching.fmap import FunctionalMapMatcher
 from topomatch.matching.oracle import MirroredOracleMatcher, OracleMatcher
@@ -23,6 +24,7 @@ MATCHERS: dict[str, type[Matcher]] = {
     "descriptor-nn": DescriptorNNMatcher,
     "fmap": FunctionalMapMatcher,
     "zoomout": ZoomOutMatcher,
+    "deform": DeformMatcher,
 }
 
 DEFAULT_METHOD = "descriptor-nn"
