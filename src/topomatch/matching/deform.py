@@ -1,9 +1,9 @@
 """The flagship matcher: spectral hypotheses, verified and refined by deforming the source.
 
-1. **Hypotheses.** Functional maps are estimated from several descriptor families and
-   basis sizes, both orientation-preserving and orientation-reversing (the latter
-   catches maps whose orientation term was fooled), and each is upsampled by ZoomOut on
-   farthest-point samples. Under topological noise any one of them may be wrong, but
+1. **Hypotheses.** Functional maps are estimated for several descriptor families and
+   basis sizes (by default four orientation-preserving HKS maps, k = 50, 30, 20, 10;
+   orientation-reversing settings can be added to catch maps whose orientation term was
+   fooled), and each is upsampled by ZoomOut on farthest-point samples. Under topological noise any one of them may be wrong, but
    different settings fail on different pairs.
 2. **Verification.** Each hypothesis seeds a coarse non-rigid registration of the
    source onto the target (embedded deformation graph, robust fit to the hypothesis'
