@@ -8,9 +8,12 @@ from __future__ import annotations
 from typing import Any
 
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
+from topomatch.matching.deform import DeformMatcher
 from topomatch.matching.descriptor_nn import DescriptorNNMatcher
+from topomatch.matching.fmap import FunctionalMapMatcher
 from topomatch.matching.oracle import MirroredOracleMatcher, OracleMatcher
 from topomatch.matching.random_map import RandomMatcher
+from topomatch.matching.zoomout import ZoomOutMatcher
 
 __all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
 
@@ -19,6 +22,9 @@ MATCHERS: dict[str, type[Matcher]] = {
     "oracle-mirror": MirroredOracleMatcher,
     "random": RandomMatcher,
     "descriptor-nn": DescriptorNNMatcher,
+    "fmap": FunctionalMapMatcher,
+    "zoomout": ZoomOutMatcher,
+    "deform": DeformMatcher,
 }
 
 DEFAULT_METHOD = "descriptor-nn"

@@ -1,0 +1,495 @@
+"""Non-rigid registration of a source surface onto a target with a deformation graph.
+
+The source deforms by an embedded deformation (Sumner et al. 2007): node ``q`` of the
+graph carries a rotation ``R_q`` and a position ``g_q``; a vertex moves to
+``v'_i = sum_q w_iq (R_q (v_i - g0_q) + g_q)``. The energy is
+
+``alpha * sum_links w_ab ||g_b - g_a - R_a (g0_b - g0_a)||^2``
+``+ sum_pairs c_p (mu_point ||v'_i - y_p||^2 + mu_plane (n_p . (v'_i - y_p))^2)``
+
+over data pairs ``(i, y_p, n_p, c_p)``: a source vertex, a target point, the target
+normal there and a robust weight. It is minimised by alternating per-node rotations
+(orthogonal Procrustes over links and data) with one sparse linear solve for all node
+positions (as-rigid-as-possible on the graph). Links whose stretch is far above the
+graph's typical stretch can be down-weighted (``robust_links``), which lets the graph
+tear where the source is glued to itself by topological noise.
+
+Because the source keeps its own connectivity, the deformed surface never takes the
+target's shortcuts: a dense map is read off by nearest neighbours between the deformed
+source and the target.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from topomatch.deform.graph import DeformationGraph
+from topomatch.mesh.geometry import vertex_normals
+from topomatch.mesh.spectral import SparseCholesky
+from topomatch.typing import FloatArray, IndexArray
+
+__all__ = [
+    "DataPairs",
+    "GraphDeformation",
+    "RegistrationResult",
+    "RegistrationSchedule",
+    "closest_pairs",
+    "nearest_compatible",
+    "register",
+]
+
+
+@dataclass
+class DataPairs:
+    """Correspondence constraints for the registration.
+
+    Attributes
+    ----------
+    source : ndarray, shape (p,)
+        Source vertex of each pair.
+    points : ndarray, shape (p, 3)
+        Target position.
+    normals : ndarray, shape (p, 3)
+        Target unit normal (for the point-to-plane term).
+    weights : ndarray, shape (p,)
+    """
+
+    source: IndexArray
+    points: FloatArray
+    normals: FloatArray
+    weights: FloatArray
+
+    def __post_init__(self) -> None:
+        p = len(self.source)
+        if self.points.shape != (p, 3) or self.normals.shape != (p, 3) or self.weights.shape != (p,):
+            raise ValueError(
+                f"DataPairs arrays disagree: source {self.source.shape}, points {self.points.shape}, "
+                f"normals {self.normals.shape}, weights {self.weights.shape}"
+            )
+
+    @classmethod
+    def concat(cls, *pairs: DataPairs) -> DataPairs:
+        """Stack several sets of pairs."""
+        return cls(
+            np.concatenate([p.source for p in pairs]),
+            np.concatenate([p.points for p in pairs]),
+            np.concatenate([p.normals for p in pairs]),
+            np.concatenate([p.weights for p in pairs]),
+        )
+
+
+def _procrustes(S: FloatArray) -> FloatArray:
+    """Rotations ``R`` maximising ``tr(R S)`` for a stack ``S`` of shape (m, 3, 3).
+
+    ``S = sum x y^T``; the result minimises ``sum ||R x - y||^2``.
+    """
+    U, _, Vt = np.linalg.svd(S)
+    R = np.einsum("mji,mkj->mik", Vt, U)  # V U^T
+    det = np.linalg.det(R)
+    flip = det < 0
+    if np.any(flip):
+        Vt2 = Vt[flip].copy()
+        Vt2[:, 2, :] *= -1
+        R[flip] = np.einsum("mji,mkj->mik", Vt2, U[flip])
+    return R
+
+
+@dataclass
+class GraphDeformation:
+    """The state of an embedded deformation of a source mesh.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3)
+        Source rest positions.
+    faces : ndarray, shape (n_faces, 3)
+    graph : DeformationGraph
+        Built on the same vertices.
+    """
+
+    vertices: FloatArray
+    faces: IndexArray
+    graph: DeformationGraph
+    rotations: FloatArray = field(init=False)
+    positions: FloatArray = field(init=False)
+    link_scale: FloatArray = field(init=False)
+
+    def __post_init__(self) -> None:
+        m = self.graph.n_nodes
+        self.vertices = np.asarray(self.vertices, dtype=np.float64)
+        self.rotations = np.tile(np.eye(3), (m, 1, 1))
+        self.positions = self.graph.rest.copy()
+        self.link_scale = np.ones(len(self.graph.links))
+        skin = self.graph.skin.tocsr()
+        skin.sort_indices()
+        self._skin = skin
+        self._indptr = skin.indptr
+        self._rows = np.repeat(np.arange(skin.shape[0]), np.diff(skin.indptr))
+        self._cols, self._w = skin.indices, skin.data
+        self._offsets = self.vertices[self._rows] - self.graph.rest[self._cols]  # (nnz, 3)
+        links = self.graph.links
+        self._dir_a = np.r_[links[:, 0], links[:, 1]]
+        self._dir_b = np.r_[links[:, 1], links[:, 0]]
+        self._dir_rest = self.graph.rest[self._dir_b] - self.graph.rest[self._dir_a]
+        nd = len(self._dir_a)
+        self._Ia = sparse.csr_matrix((np.ones(nd), (self._dir_a, np.arange(nd))), shape=(m, nd))
+        self._Ib = sparse.csr_matrix((np.ones(nd), (self._dir_b, np.arange(nd))), shape=(m, nd))
+        self._D = (self._Ib - self._Ia).tocsr()
+
+    # ---- evaluation ------------------------------------------------------------------------
+    def _row_sum(self, vals: FloatArray) -> FloatArray:
+        """Sum per-nonzero values of the skinning matrix over each vertex row."""
+        return np.add.reduceat(vals, self._indptr[:-1], axis=0)
+
+    def _rotated_offsets(self) -> FloatArray:
+        return np.einsum("kab,kb->ka", self.rotations[self._cols], self._offsets)
+
+    def _affine_part(self) -> FloatArray:
+        """``a_i = sum_q w_iq R_q (v_i - g0_q)``, shape (n, 3)."""
+        return self._row_sum(self._w[:, None] * self._rotated_offsets())
+
+    def deformed(self) -> FloatArray:
+        """Deformed source vertices, shape (n, 3)."""
+        return self._affine_part() + self._skin @ self.positions
+
+    def deformed_normals(self, deformed: FloatArray | None = None) -> FloatArray:
+        """Compute unit vertex normals of the deformed source, shape (n, 3)."""
+        v = self.deformed() if deformed is None else deformed
+        return vertex_normals(v, self.faces)
+
+    def link_stretch(self) -> FloatArray:
+        """Residual of each link, ``||g_b - g_a - R_a e_ab||`` averaged over both directions, shape (n_links,)."""
+        d = self.positions[self._dir_b] - self.positions[self._dir_a] - np.einsum("kab,kb->ka", self.rotations[self._dir_a], self._dir_rest)
+        r = np.linalg.norm(d, axis=1)
+        nl = len(self.graph.links)
+        return 0.5 * (r[:nl] + r[nl:])
+
+    # ---- steps -----------------------------------------------------------------------------
+    def _link_weights(self) -> FloatArray:
+        w = self.graph.link_weights * self.link_scale
+        return np.r_[w, w]
+
+    def update_rotations(self, pairs: DataPairs | None, data_weight: float = 1.0) -> None:
+        """Procrustes step: best rotation per node for the current positions."""
+        m = self.graph.n_nodes
+        wl = self._link_weights()
+        cur = self.positions[self._dir_b] - self.positions[self._dir_a]
+        outer = (wl[:, None, None] * self._dir_rest[:, :, None] * cur[:, None, :]).reshape(-1, 9)
+        S = np.asarray(self._Ia @ outer).reshape(m, 3, 3)
+        if pairs is not None and len(pairs.source) and data_weight > 0:
+            # S_a += sum_i P_ia c_i (v_i - g0_a)(y_i - g_a)^T, expanded into sparse products
+            Pt = self._skin[pairs.source].T.tocsr()  # (m, p)
+            c = data_weight * pairs.weights
+            v = self.vertices[pairs.source]
+            y = pairs.points
+            vy = (c[:, None, None] * v[:, :, None] * y[:, None, :]).reshape(-1, 9)
+            S_vy = np.asarray(Pt @ vy).reshape(m, 3, 3)
+            sv = Pt @ (c[:, None] * v)
+            sy = Pt @ (c[:, None] * y)
+            sc = Pt @ c
+            g0, g = self.graph.rest, self.positions
+            S += S_vy - sv[:, :, None] * g[:, None, :] - g0[:, :, None] * sy[:, None, :] + sc[:, None, None] * g0[:, :, None] * g[:, None, :]
+        tiny = np.einsum("mii->m", np.abs(S)) < 1e-300
+        R = _procrustes(S + 1e-12 * np.eye(3))
+        R[tiny] = self.rotations[tiny]
+        self.rotations = R
+
+    def update_positions(self, pairs: DataPairs, *, alpha: float, mu_point: float = 1.0, mu_plane: float = 0.0) -> None:
+        """Linear step: node positions minimising the energy for fixed rotations."""
+        m = self.graph.n_nodes
+        if len(pairs.source) == 0 or not float(pairs.weights.sum()) > 0:
+            return  # no data (e.g. every closest pair had incompatible normals): keep the state
+        wl = self._link_weights()
+        # regulariser: sum over directed links of w ||g_b - g_a - d_ab||^2
+        d = np.einsum("kab,kb->ka", self.rotations[self._dir_a], self._dir_rest)
+        Lg = (self._D @ sparse.diags(wl) @ self._D.T).tocsr()
+        rhs = self._D @ (wl[:, None] * d)
+        # data
+        P = self._skin[pairs.source]  # (p, m)
+        resid = pairs.points - self._affine_part()[pairs.source]  # y - a_i, (p, 3)
+        c = pairs.weights
+        data_scale = float(c.sum()) / max(float(wl.sum()), 1e-300)
+        reg = alpha * data_scale
+        A = reg * Lg
+        r = reg * rhs
+        if mu_point > 0:
+            A = A + (P.T @ sparse.diags(mu_point * c) @ P)
+            r = r + P.T @ (mu_point * c[:, None] * resid)
+        H = sparse.kron(A, sparse.identity(3), format="csr")
+        r = np.asarray(r).ravel()
+        if mu_plane > 0:
+            Pc = P.tocoo()
+            nrm = pairs.normals
+            rows = np.repeat(Pc.row, 3)
+            cols = (3 * Pc.col[:, None] + np.arange(3)[None, :]).ravel()
+            vals = (Pc.data[:, None] * nrm[Pc.row]).ravel()
+            J = sparse.csr_matrix((vals, (rows, cols)), shape=(len(c), 3 * m))
+            proj = np.einsum("pc,pc->p", nrm, resid)
+            H = H + (J.T @ sparse.diags(mu_plane * c) @ J)
+            r = r + J.T @ (mu_plane * c * proj)
+        eps = 1e-8 * float(H.diagonal().mean())
+        H = H + eps * sparse.identity(3 * m)
+        r = r + eps * self.positions.ravel()
+        chol = SparseCholesky(H)
+        self.positions = chol.solve(r).reshape(m, 3)
+
+    def update_link_scale(self, threshold: float) -> None:
+        """Down-weight links stretched more than ``threshold`` times the median stretch."""
+        s = self.link_stretch()
+        med = float(np.median(s)) + 1e-12 * self.graph.spacing
+        x = s / (threshold * med)
+        self.link_scale = 1.0 / (1.0 + x**4)
+
+    def init_from_pairs(self, pairs: DataPairs) -> None:
+        """Move each node by the weighted mean displacement its skinned vertices ask for.
+
+        Nodes without pairs stay at rest.
+        """
+        m = self.graph.n_nodes
+        P = self.graph.skin[pairs.source].tocsr()
+        wsum = np.asarray(P.T @ pairs.weights).ravel()
+        disp = P.T @ (pairs.weights[:, None] * (pairs.points - self.vertices[pairs.source]))
+        has = wsum > 1e-12
+        self.positions = self.graph.rest.copy()
+        self.positions[has] += disp[has] / wsum[has, None]
+        del m
+
+
+def nearest_compatible(
+    points: FloatArray,
+    normals: FloatArray,
+    tree: cKDTree,
+    ref_normals: FloatArray,
+    *,
+    k: int = 8,
+    min_cos: float = 0.0,
+) -> tuple[IndexArray, FloatArray]:
+    """Nearest reference point whose normal agrees with each query's normal.
+
+    Among the ``k`` nearest reference points, take the first with
+    ``normal . ref_normal >= min_cos``; fall back to the nearest.
+
+    Returns
+    -------
+    index : ndarray, shape (q,)
+    distance : ndarray, shape (q,)
+    """
+    d, idx = tree.query(points, k=1)
+    if k == 1:
+        return idx, d
+    bad = np.flatnonzero(np.einsum("qc,qc->q", normals, ref_normals[idx]) < min_cos)
+    if bad.size:
+        dk, ik = tree.query(points[bad], k=k)
+        cos = np.einsum("qc,qkc->qk", normals[bad], ref_normals[ik])
+        ok = cos >= min_cos
+        first = np.where(ok.any(axis=1), np.argmax(ok, axis=1), 0)
+        r = np.arange(len(bad))
+        idx[bad] = ik[r, first]
+        d[bad] = dk[r, first]
+    return idx, d
+
+
+def closest_pairs(
+    deformed: FloatArray,
+    deformed_normals: FloatArray,
+    target_vertices: FloatArray,
+    target_normals: FloatArray,
+    target_tree: cKDTree,
+    *,
+    sigma: float,
+    min_cos: float = 0.3,
+    source_subset: IndexArray | None = None,
+    target_subset: IndexArray | None = None,
+    backward: bool = True,
+) -> DataPairs:
+    """ICP pairs in both directions with normal compatibility and robust weights.
+
+    Forward: each (sampled) deformed source vertex to its nearest compatible target
+    vertex. Backward: each (sampled) target vertex to its nearest compatible deformed
+    source vertex, so that every part of the target pulls on the source. Weights are
+    ``1 / (1 + (d / sigma)^2)``; incompatible normals get weight zero.
+    """
+    src = np.arange(len(deformed)) if source_subset is None else np.asarray(source_subset)
+    j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos)
+    cos = np.einsum("pc,pc->p", deformed_normals[src], target_normals[j])
+    w = np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
+    parts = [DataPairs(src, target_vertices[j], target_normals[j], w)]
+    if backward:
+        tgt = np.arange(len(target_vertices)) if target_subset is None else np.asarray(target_subset)
+        stree = cKDTree(deformed)
+        i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
+        cos2 = np.einsum("pc,pc->p", target_normals[tgt], deformed_normals[i])
+        w2 = np.where(cos2 >= min_cos, 1.0 / (1.0 + (d2 / sigma) ** 2), 0.0)
+        parts.append(DataPairs(i, target_vertices[tgt], target_normals[tgt], w2))
+    out = DataPairs.concat(*parts)
+    keep = out.weights > 0
+    return DataPairs(out.source[keep], out.points[keep], out.normals[keep], out.weights[keep])
+
+
+@dataclass(frozen=True)
+class RegistrationSchedule:
+    """How a registration runs: graph size, iterations, stiffness and robust scales.
+
+    Lengths (``sigma_*``, ``inlier_distance``) are in units of the square root of the
+    source's surface area.
+
+    Attributes
+    ----------
+    n_nodes : int
+        Deformation graph nodes.
+    fit_iterations : int
+        Iterations pulling the source towards the initial correspondences, with robust
+        weights whose scale shrinks from ``sigma_fit[0]`` to ``sigma_fit[1]``.
+    alpha_fit : float
+        Stiffness during those iterations (relative to the data term).
+    icp_iterations : int
+        Closest-point iterations; stiffness goes geometrically from ``alpha_icp[0]`` to
+        ``alpha_icp[1]`` and the robust scale from ``sigma_icp[0]`` to ``sigma_icp[1]``.
+    n_samples : int or None
+        Farthest-point samples per shape used for the closest-point pairs (``None``: all).
+    mu_point, mu_plane : float
+        Weights of the point-to-point and point-to-plane terms in the closest-point phase.
+    min_cos : float
+        Minimum cosine between normals for a closest-point pair.
+    """
+
+    n_nodes: int = 300
+    fit_iterations: int = 10
+    alpha_fit: float = 1.0
+    sigma_fit: tuple[float, float] = (0.2, 0.05)
+    icp_iterations: int = 20
+    alpha_icp: tuple[float, float] = (1.0, 0.05)
+    sigma_icp: tuple[float, float] = (0.05, 0.01)
+    n_samples: int | None = None
+    mu_point: float = 0.1
+    mu_plane: float = 1.0
+    min_cos: float = 0.3
+
+
+@dataclass
+class RegistrationResult:
+    """Outcome of :func:`register`.
+
+    Attributes
+    ----------
+    deformed : ndarray, shape (n_source, 3)
+        Deformed source vertices.
+    deformation : GraphDeformation
+        Final state (can seed a finer registration).
+    residual : float
+        Mean two-sided distance between deformed source and target, each distance
+        capped at ``cap`` (units of sqrt(source area)); lower is a better fit.
+    distortion : float
+        Mean link stretch over the mean link length.
+    """
+
+    deformed: FloatArray
+    deformation: GraphDeformation
+    residual: float
+    distortion: float
+
+
+def _geometric(a: tuple[float, float], t: float) -> float:
+    return float(a[0] * (a[1] / a[0]) ** t) if a[0] > 0 else 0.0
+
+
+def register(
+    source_vertices: FloatArray,
+    source_faces: IndexArray,
+    target_vertices: FloatArray,
+    target_faces: IndexArray,
+    init_pairs: DataPairs | None,
+    schedule: RegistrationSchedule = RegistrationSchedule(),
+    *,
+    graph: DeformationGraph | None = None,
+    start: GraphDeformation | None = None,
+    samples: tuple[IndexArray, IndexArray] | None = None,
+    cap: float = 0.05,
+) -> RegistrationResult:
+    """Deform the source onto the target: correspondence fit, then closest-point ICP.
+
+    Parameters
+    ----------
+    source_vertices : ndarray, shape (n1, 3)
+    source_faces : ndarray, shape (f1, 3)
+    target_vertices : ndarray, shape (n2, 3)
+    target_faces : ndarray, shape (f2, 3)
+    init_pairs : DataPairs or None
+        Initial correspondences (source vertex -> target point); their weights are the
+        prior confidences. ``None`` skips the fitting phase (needs ``start``).
+    schedule : RegistrationSchedule
+    graph : DeformationGraph, optional
+        Built with ``schedule.n_nodes`` nodes when omitted.
+    start : GraphDeformation, optional
+        Initial state on another graph of the same source; its deformed vertices seed
+        this registration.
+    samples : pair of ndarray, optional
+        Source and target vertex samples for the closest-point phase; computed by
+        farthest-point sampling when ``schedule.n_samples`` is set and they are omitted.
+    cap : float
+        Distance cap of the residual.
+
+    Returns
+    -------
+    RegistrationResult
+    """
+    from topomatch.deform.graph import build_deformation_graph
+    from topomatch.mesh.geometry import face_areas
+    from topomatch.mesh.sampling import farthest_point_sampling
+
+    V = np.asarray(source_vertices, dtype=np.float64)
+    F = np.asarray(source_faces, dtype=np.int64)
+    W = np.asarray(target_vertices, dtype=np.float64)
+    Nt = vertex_normals(W, np.asarray(target_faces, dtype=np.int64))
+    scale = float(np.sqrt(face_areas(V, F).sum()))
+    if graph is None:
+        graph = build_deformation_graph(V, F, schedule.n_nodes)
+    D = GraphDeformation(V, F, graph)
+    if start is not None:
+        cur = start.deformed()
+        D.init_from_pairs(DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V))))
+        D.update_rotations(DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V))))
+    if init_pairs is not None and schedule.fit_iterations > 0:
+        prior = init_pairs.weights
+        if start is None:
+            D.init_from_pairs(init_pairs)
+        pairs = init_pairs
+        for it in range(schedule.fit_iterations):
+            t = it / max(schedule.fit_iterations - 1, 1)
+            D.update_rotations(pairs)
+            D.update_positions(pairs, alpha=schedule.alpha_fit)
+            sig = scale * _geometric(schedule.sigma_fit, t)
+            r2 = np.sum((D.deformed()[init_pairs.source] - init_pairs.points) ** 2, axis=1)
+            pairs = DataPairs(init_pairs.source, init_pairs.points, init_pairs.normals, prior / (1.0 + r2 / sig**2))
+    elif start is None and init_pairs is None:
+        raise ValueError("register needs init_pairs or a start state")
+    src_s = tgt_s = None
+    if samples is not None:
+        src_s, tgt_s = (np.asarray(x, dtype=np.int64) for x in samples)
+    elif schedule.n_samples is not None:
+        src_s = farthest_point_sampling(min(schedule.n_samples, len(V)), points=V, first=0)
+        tgt_s = farthest_point_sampling(min(schedule.n_samples, len(W)), points=W, first=0)
+    tree = cKDTree(W)
+    for it in range(schedule.icp_iterations):
+        t = it / max(schedule.icp_iterations - 1, 1)
+        Vd = D.deformed()
+        Nd = vertex_normals(Vd, F)
+        pairs = closest_pairs(
+            Vd, Nd, W, Nt, tree, sigma=scale * _geometric(schedule.sigma_icp, t), min_cos=schedule.min_cos,
+            source_subset=src_s, target_subset=tgt_s,
+        )
+        D.update_rotations(pairs)
+        D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)
+    Vd = D.deformed()
+    Nd = vertex_normals(Vd, F)
+    qs = np.arange(len(V)) if src_s is None else src_s
+    qt = np.arange(len(W)) if tgt_s is None else tgt_s
+    _, d1 = nearest_compatible(Vd[qs], Nd[qs], tree, Nt, min_cos=schedule.min_cos)
+    _, d2 = nearest_compatible(W[qt], Nt[qt], cKDTree(Vd), Nd, min_cos=schedule.min_cos)
+    residual = 0.5 * (float(np.mean(np.minimum(d1 / scale, cap))) + float(np.mean(np.minimum(d2 / scale, cap))))
+    distortion = float(np.mean(D.link_stretch())) / graph.spacing
+    return RegistrationResult(Vd, D, residual, distortion)
