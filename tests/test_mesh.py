@@ -83,3 +83,13 @@ def test_boundary_loops_of_annulus():
     # each boundary edge appears in exactly one loop
     be = g.boundary_edges(a.faces)
     assert sum(len(lp) for lp in loops) == len(be)
+
+
+def test_mesh_pickles_after_building_a_geodesic_solver(sphere):
+    import pickle
+
+    mesh = type(sphere)(sphere.vertices, sphere.faces, name="s")
+    d0 = mesh.geodesic_solver("heat").distances_from([0])
+    clone = pickle.loads(pickle.dumps(mesh))
+    assert clone.name == "s" and np.array_equal(clone.faces, mesh.faces)
+    assert np.allclose(clone.geodesic_solver("heat").distances_from([0]), d0)

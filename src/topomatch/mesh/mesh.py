@@ -239,6 +239,13 @@ class TriangleMesh:
             self.__dict__[key] = make_geodesic_solver(self.vertices, self.faces, kind)
         return self.__dict__[key]
 
+    def __getstate__(self) -> dict:
+        """Pickle without geodesic solvers (they hold native factorisations; rebuilt on use)."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_geo_")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+
     def drop_caches(self) -> None:
         """Forget cached operators, bases and solvers (to free memory)."""
         for k in [k for k in self.__dict__ if k.startswith(("_lap_", "_geo_"))]:
