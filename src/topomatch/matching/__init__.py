@@ -9,13 +9,20 @@ from typing import Any
 
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
 from topomatch.matching.descriptor_nn import DescriptorNNMatcher
+from topomatch.matching.em import IsometricEmbeddingEMMatcher
+from topomatch.matching.ge import GreenEmbeddingGT4Matcher, GreenEmbeddingMatcher
 from topomatch.matching.oracle import OracleMatcher
+from topomatch.matching.rf import RandomForestMatcher
 
 __all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
 
 MATCHERS: dict[str, type[Matcher]] = {
     "oracle": OracleMatcher,
     "descriptor-nn": DescriptorNNMatcher,
+    "em": IsometricEmbeddingEMMatcher,
+    "ge": GreenEmbeddingMatcher,
+    "ge-gt4": GreenEmbeddingGT4Matcher,
+    "rf": RandomForestMatcher,
 }
 
 DEFAULT_METHOD = "descriptor-nn"
