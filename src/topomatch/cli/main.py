@@ -124,6 +124,15 @@ def _build_parser() -> argparse.ArgumentParser:
     nz.add_argument("--seed", type=int, default=0, help="random_state")
     nz.add_argument("--jobs", type=int, default=1, help="worker processes")
 
+    f = sub.add_parser("fit", help="train a learning method (e.g. rf) and cache / save its model")
+    f.add_argument("method", choices=sorted(n for n, c in MATCHERS.items() if c.requires_fit and not c.uses_ground_truth))
+    _add_data_args(f)
+    f.add_argument("--dataset", choices=["builtin", "topkids"], help="default: topkids when --data or $TOPOMATCH_DATA is set, else builtin")
+    f.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="hyperparameter (repeatable)")
+    f.add_argument("--seed", type=int, default=0, help="random_state")
+    f.add_argument("--out", metavar="MODEL", help="also write the model to this .npz file")
+    f.add_argument("--no-cache", action="store_true", help="do not use the model cache")
+
     d = sub.add_parser("data", help="inspect the data")
     dsub = d.add_subparsers(dest="data_command", required=True)
     for name, help_ in (("info", "counts, topology and ground-truth coverage per shape"), ("check", "parse every file; exit 1 on any problem")):
@@ -248,8 +257,10 @@ def cmd_match(args: argparse.Namespace) -> int:
         matcher = make_matcher(args.method, **params)
         if "random_state" in matcher.get_params() and "random_state" not in params:
             matcher.set_params(random_state=args.seed)
+        if matcher.requires_fit and not getattr(matcher, "model", None):
+            raise ValueError(f"{args.method} needs training; use 'topomatch bench', or 'topomatch fit {args.method} --out MODEL' and --param model=MODEL")
         if matcher.requires_fit:
-            raise ValueError(f"{args.method} needs training; use 'topomatch bench' or fit it in Python")
+            matcher.fit([])  # loads the model file given as --param model=...
     except (ValueError, FileNotFoundError, TypeError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -283,6 +294,33 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 2
     sys.stdout.write((out / "table1.md").read_text())
     print(f"report written to {out} in {time.perf_counter() - t0:.1f} s: {path}", file=sys.stderr)
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    import os
+
+    from topomatch.evaluation.fitting import fit_method
+
+    dataset = args.dataset or ("topkids" if (args.data or os.environ.get("TOPOMATCH_DATA")) else "builtin")
+    _enable_cache(args.no_cache)
+    try:
+        res = fit_method(
+            args.method,
+            dataset=dataset,
+            data_dir=Path(args.data).resolve() if args.data else None,
+            resolution=args.resolution,
+            params=_parse_params(args.param, [args.method]).get(args.method, {}),
+            random_state=args.seed,
+            out=args.out,
+        )
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    how = "loaded from the cache" if res.from_cache else f"trained in {res.seconds:.1f} s"
+    print(f"{args.method}: {how} on {len(res.shapes)} shapes ({', '.join(res.shapes)})", file=sys.stderr)
+    if res.model_path is not None:
+        print(f"model written to {res.model_path}", file=sys.stderr)
     return 0
 
 
@@ -366,5 +404,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_report(args)
     if args.command == "noise":
         return cmd_noise(args)
+    if args.command == "fit":
+        return cmd_fit(args)
     parser.error(f"unknown command {args.command}")
     return 2

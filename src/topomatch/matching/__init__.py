@@ -10,9 +10,12 @@ from typing import Any
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
 from topomatch.matching.deform import DeformMatcher
 from topomatch.matching.descriptor_nn import DescriptorNNMatcher
+from topomatch.matching.em import IsometricEmbeddingEMMatcher
 from topomatch.matching.fmap import FunctionalMapMatcher
+from topomatch.matching.ge import GreenEmbeddingGT4Matcher, GreenEmbeddingMatcher
 from topomatch.matching.oracle import MirroredOracleMatcher, OracleMatcher
 from topomatch.matching.random_map import RandomMatcher
+from topomatch.matching.rf import RandomForestMatcher
 from topomatch.matching.zoomout import ZoomOutMatcher
 
 __all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
@@ -22,6 +25,10 @@ MATCHERS: dict[str, type[Matcher]] = {
     "oracle-mirror": MirroredOracleMatcher,
     "random": RandomMatcher,
     "descriptor-nn": DescriptorNNMatcher,
+    "em": IsometricEmbeddingEMMatcher,
+    "ge": GreenEmbeddingMatcher,
+    "ge-gt4": GreenEmbeddingGT4Matcher,
+    "rf": RandomForestMatcher,
     "fmap": FunctionalMapMatcher,
     "zoomout": ZoomOutMatcher,
     "deform": DeformMatcher,
