@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ._shrec16_toys import bent, planar_errors, sheet, shuffled
 from topomatch.matching import MATCHERS, make_matcher
 from topomatch.matching._spectral import classical_mds
 from topomatch.matching.em import IsometricEmbeddingEMMatcher, greedy_refine, isometric_distortion
 from topomatch.mesh.biharmonic import biharmonic_distances, biharmonic_embedding, unit_area_basis
+
+from ._shrec16_toys import bent, planar_errors, sheet, shuffled
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ._shrec16_toys import as_shape, bent, planar_errors, reference_shape, sheet, shuffled
 from topomatch.matching import MATCHERS, NotFittedError
 from topomatch.matching.ge import (
     GreenEmbeddingGT4Matcher,
@@ -13,6 +12,8 @@ from topomatch.matching.ge import (
     align_green_embeddings,
     solve_linear_map,
 )
+
+from ._shrec16_toys import as_shape, bent, planar_errors, reference_shape, sheet, shuffled
 
 
 @pytest.fixture(scope="module")
