@@ -370,7 +370,7 @@ class GreenEmbeddingGT4Matcher(GreenEmbeddingMatcher):
             dmin = np.minimum(dmin, solver.distances_from(np.array([nxt]))[0])
         self.reference_landmarks_ = np.asarray(out, dtype=np.int64)
         # fallback order: reference vertices by geodesic distance from each landmark
-        self.fallback_order_ = np.argsort(solver.distances_from(self.reference_landmarks_), axis=1)[:, :2000]
+        self.fallback_order_ = np.argsort(solver.distances_from(self.reference_landmarks_), axis=1)
         self.shapes_ = {s.mesh.content_hash: s for s in shapes}
         return self
 
