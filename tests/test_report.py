@@ -316,3 +316,22 @@ def test_render_mesh_puts_the_top_at_the_top(tmp_path):
     assert bottom[..., 2].mean() > bottom[..., 0].mean() + 40
     with pytest.raises(ValueError, match="vertex_colors"):
         save_rendering(tmp_path / "t.png", mesh.vertices, mesh.faces, colors[:5])
+
+
+def test_runs_with_different_protocols_combine(report_run, tmp_path):
+    """A run that scored only topkids25 beside one that scored both: no crash, both tables."""
+    from topomatch.report import build_report
+
+    only = tmp_path / "tk25"
+    shutil.copytree(report_run, only, ignore=shutil.ignore_patterns("report"))
+    shutil.rmtree(only / "scores" / "shrec16")
+    m = json.loads((only / "manifest.json").read_text())
+    m["protocols"].pop("shrec16")
+    (only / "manifest.json").write_text(json.dumps(m))
+    summary = json.loads((only / "summary.json").read_text())
+    for blocks in summary["methods"].values():
+        blocks.pop("shrec16", None)
+    (only / "summary.json").write_text(json.dumps(summary))
+    build_report([only, report_run], tmp_path / "mixed")
+    assert (tmp_path / "mixed" / "curves_shrec16.png").exists()
+    assert (tmp_path / "mixed" / "curves_topkids25.png").exists()

@@ -143,6 +143,8 @@ class RunResults:
         key = (protocol, method)
         if key in self._curves:
             return self._curves[key]
+        if not self.pairs(protocol, method):  # this run did not score the protocol
+            return np.zeros(0), np.zeros((0, 0)), [], np.zeros(0)
         t = self.thresholds(protocol)
         pairs, curves, aucs = [], [], []
         for pid in self.pairs(protocol, method):
