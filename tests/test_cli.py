@@ -6,7 +6,7 @@ import pytest
 from topomatch.cli import main
 from topomatch.io import read_p2p, write_mesh, write_p2p
 
-from .conftest import DATA
+from .conftest import DATA, data_path
 
 
 def test_bench_builtin_prints_table(tmp_path, capsys, monkeypatch):
@@ -59,6 +59,7 @@ def test_evaluate_a_submission_folder(tmp_path, topkids_low, capsys):
 
 @pytest.mark.data
 def test_data_info(capsys):
+    data_path("topkids", "low_res", "kid25.off")
     rc = main(["data", "info", "--data", str(DATA), "--resolution", "low"])
     out = capsys.readouterr().out
     assert rc == 0 and "kid25" in out and "low res" in out
