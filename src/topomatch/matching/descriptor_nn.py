@@ -4,21 +4,13 @@ from __future__ import annotations
 
 from typing import Literal
 
-import numpy as np
-
-from topomatch.descriptors import mesh_hks, mesh_wks
 from topomatch.maps.knn import nearest_neighbors
 from topomatch.matching.base import Correspondence, Matcher
+from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray
 
 __all__ = ["DescriptorNNMatcher"]
-
-
-def _normalize(desc: FloatArray, mass: FloatArray) -> FloatArray:
-    """Scale each descriptor dimension to unit area-weighted L2 norm."""
-    norms = np.sqrt(mass @ desc**2)
-    return desc / np.where(norms > 0, norms, 1.0)
 
 
 class DescriptorNNMatcher(Matcher):
@@ -46,14 +38,7 @@ class DescriptorNNMatcher(Matcher):
         self.k = k
 
     def _describe(self, mesh: TriangleMesh) -> FloatArray:
-        basis = mesh.eigenbasis(self.k)
-        if self.descriptor == "wks":
-            d = mesh_wks(basis, self.n_descriptors, self.k)
-        elif self.descriptor == "hks":
-            d = mesh_hks(basis, self.n_descriptors, self.k)
-        else:
-            raise ValueError(f"descriptor must be 'wks' or 'hks', got {self.descriptor!r}")
-        return _normalize(d, basis.mass)
+        return spectral_descriptors(mesh, self.descriptor, self.n_descriptors, self.k)
 
     def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
         d1 = self._describe(source)
