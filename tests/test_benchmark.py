@@ -102,3 +102,18 @@ def test_max_pairs_takes_an_evenly_spaced_subset(tmp_path):
         BenchmarkConfig(max_pairs=0).validate()
     s = run_benchmark(BenchmarkConfig(methods=["oracle"], protocols=["topkids25"], max_pairs=2), tmp_path / "m", progress=False)
     assert s["methods"]["oracle"]["topkids25"]["n_pairs"] == 2
+
+
+def test_pair_selection_runs_exactly_the_named_pairs(tmp_path):
+    from topomatch.evaluation.benchmark import load_collection
+    from topomatch.evaluation.protocols import get_protocol
+
+    cfg = BenchmarkConfig(methods=["oracle"], protocols=["topkids25"])
+    all_pairs = get_protocol("topkids25").pairs(load_collection(cfg))
+    wanted = [all_pairs[-1].id, all_pairs[0].id]
+    s = run_benchmark(BenchmarkConfig(methods=["oracle"], protocols=["topkids25"], pairs=wanted), tmp_path / "p", progress=False)
+    assert s["methods"]["oracle"]["topkids25"]["n_pairs"] == 2
+    with pytest.raises(ValueError, match="not in the"):
+        run_benchmark(BenchmarkConfig(methods=["oracle"], protocols=["topkids25"], pairs=["nosuch-kid00"]), tmp_path / "q", progress=False)
+    with pytest.raises(ValueError, match="target"):
+        BenchmarkConfig(pairs=["justonename"]).validate()

@@ -59,6 +59,7 @@ def _build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", metavar="RUN", help="run directory (default: runs/<dataset>-<time>)")
     b.add_argument("--jobs", type=int, default=1, help="worker processes")
     b.add_argument("--max-pairs", type=int, metavar="N", help="at most N pairs per protocol (evenly spaced subset)")
+    b.add_argument("--pair", action="append", metavar="TARGET-SOURCE", help="run only this pair, e.g. kid02-kid01 (repeatable)")
     b.add_argument("--dask", metavar="SCHEDULER", help="run on an existing Dask cluster (tcp://host:8786; needs topomatch[dask])")
     b.add_argument("--seed", type=int, default=0, help="random_state for every method")
     sym = b.add_mutually_exclusive_group()
@@ -189,6 +190,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         jobs=args.jobs,
         random_state=args.seed,
         max_pairs=args.max_pairs,
+        pairs=args.pair,
     )
     out = Path(args.out) if args.out else Path("runs") / f"{dataset}-{time.strftime('%Y%m%d-%H%M%S')}"
     _enable_cache(args.no_cache)

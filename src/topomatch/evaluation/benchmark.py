@@ -64,6 +64,11 @@ class BenchmarkConfig:
         Score at most this many pairs per protocol: an evenly spaced, deterministic subset
         of the protocol's ordered pair list (for expensive methods, e.g. at high res).
         Summaries then state ``n_pairs`` honestly; ``None`` runs every pair.
+    pairs : list of str, optional
+        Run only these pairs (ids ``"<target>-<source>"``), each of which must belong to
+        every selected protocol's split. Applied before ``max_pairs``. Useful at high
+        resolution, where scoring costs per *source* shape: pairs that share a source
+        share that cost.
     """
 
     dataset: str = "builtin"
@@ -79,6 +84,7 @@ class BenchmarkConfig:
     random_state: int = 0
     external: bool = False
     max_pairs: int | None = None
+    pairs: list[str] | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` on unknown names."""
@@ -100,6 +106,10 @@ class BenchmarkConfig:
             raise ValueError("jobs must be >= 1")
         if self.max_pairs is not None and (isinstance(self.max_pairs, bool) or int(self.max_pairs) < 1):
             raise ValueError(f"max_pairs must be a positive integer, got {self.max_pairs!r}")
+        if self.pairs is not None and not self.pairs:
+            raise ValueError("pairs must not be empty when given")
+        for pid in self.pairs or []:
+            PairSpec.from_id(pid)
 
 
 _COLLECTIONS: dict[str, ShapeCollection] = {}
@@ -290,6 +300,16 @@ def run_benchmark(
     pair_sets = {p.name: p.pairs(collection, config.split) for p in protocols}
     for p in protocols:
         exp = p.expected_pairs(collection, config.split)
+        if config.pairs is not None:
+            known = {pr.id: pr for pr in pair_sets[p.name]}
+            bad = [pid for pid in config.pairs if pid not in known]
+            if bad:
+                raise ValueError(
+                    f"{p.name}: pair(s) {', '.join(bad)} not in the {config.split or p.default_split} split "
+                    f"of {collection.name} ({config.resolution} res); ids are <target>-<source>"
+                )
+            pair_sets[p.name] = [known[pid] for pid in dict.fromkeys(config.pairs)]
+            say(f"{p.name}: {len(pair_sets[p.name])} of {exp} pairs (--pair)")
         if config.max_pairs is not None and len(pair_sets[p.name]) > config.max_pairs:
             pair_sets[p.name] = subset_pairs(pair_sets[p.name], config.max_pairs)
             say(f"{p.name}: {config.max_pairs} of {exp} pairs (evenly spaced subset, --max-pairs)")
