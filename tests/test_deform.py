@@ -70,6 +70,8 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair):
     err = np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1) / np.sqrt(src.area)
     assert np.mean(err) < 0.05  # tangential sliding on this smooth shape costs ~0.04
     assert c.info["hypothesis"] in c.info["residuals"]
+    # the default matcher hypotheses (ge, em) were verified too
+    assert {"ge", "em"} <= set(c.info["residuals"])
     # deterministic
     np.testing.assert_array_equal(m.match(src, tgt).p2p_21, c.p2p_21)
 
@@ -83,3 +85,17 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", hypotheses=()).match(src, tgt)
     with pytest.raises(ValueError, match="n_samples"):
         make_matcher("deform", n_samples=0).match(src, tgt)
+    with pytest.raises(ValueError, match="ground truth or needs training"):
+        make_matcher("deform", matcher_hypotheses=("oracle",)).match(src, tgt)
+    with pytest.raises(ValueError, match="ground truth or needs training"):
+        make_matcher("deform", matcher_hypotheses=("rf",)).match(src, tgt)
+    with pytest.raises(ValueError, match="unknown or invalid"):
+        make_matcher("deform", matcher_hypotheses=("nosuch",)).match(src, tgt)
+
+
+def test_deform_matcher_hypotheses_from_other_matchers(pair):
+    src, tgt, _ = pair
+    m = make_matcher("deform", hypotheses=(("hks", 10, True),), matcher_hypotheses=("em",),
+                     n_samples=800, coarse_nodes=80, fine_nodes=200)
+    c = m.match(src, tgt)
+    assert set(c.info["residuals"]) == {"hks k=10 reversing", "em"}

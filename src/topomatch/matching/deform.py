@@ -11,6 +11,8 @@
    connectivity, so it cannot take the target's shortcuts; a wrong hypothesis leaves a
    poor fit. The hypothesis whose registered source fits the target best (mean capped
    two-sided distance) wins. No ground truth is involved.
+   Besides the functional maps, the maps of two axiomatic matchers with different
+   failure modes (``ge`` with automatic landmarks, ``em``) are verified the same way.
 3. **Refinement.** The winner is registered again on a finer graph with
    point-to-plane closest points on all vertices, and every target vertex takes the
    nearest deformed source vertex with a compatible normal.
@@ -63,6 +65,8 @@ class Hypothesis:
 
     label: str
     p2p: IndexArray
+    target: IndexArray | None = None
+    """Target vertices the map is given on (``None``: the target samples)."""
 
 
 @dataclass
@@ -210,6 +214,14 @@ class DeformMatcher(Matcher):
         Stiffness at the start and end of the final closest-point iterations.
     n_refine : int
         How many best-verified hypotheses get the final registration (the best fit wins).
+    matcher_hypotheses : sequence of str
+        Names of other registered matchers (e.g. ``"em"``, ``"ge"``) whose maps are
+        verified as further hypotheses, after the spectral ones. Only matchers that use
+        no ground truth and need no training are accepted. A sparse map (``-1`` where
+        unmatched) contributes its matched target vertices. Default: the automatic
+        Green's-embedding alignment and the biharmonic EM matcher, whose failures
+        differ from the functional maps' (training pairs: 20.55 -> 16.70, see
+        ``docs/flagship.md``).
     """
 
     name = "deform"
@@ -228,6 +240,7 @@ class DeformMatcher(Matcher):
         fine_icp_iterations: int = 12,
         fine_alpha: tuple[float, float] = (0.5, 0.05),
         n_refine: int = 1,
+        matcher_hypotheses: tuple[str, ...] = ("ge", "em"),
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -240,6 +253,7 @@ class DeformMatcher(Matcher):
         self.fine_icp_iterations = fine_icp_iterations
         self.fine_alpha = fine_alpha
         self.n_refine = n_refine
+        self.matcher_hypotheses = matcher_hypotheses
 
     def _check(self) -> list[tuple[str, int, bool]]:
         settings = []
@@ -253,7 +267,29 @@ class DeformMatcher(Matcher):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        from topomatch.matching import MATCHERS
+
+        for name in self.matcher_hypotheses:
+            cls = MATCHERS.get(name)
+            if cls is None or name == self.name:
+                raise ValueError(f"matcher_hypotheses: unknown or invalid matcher {name!r}")
+            if cls.uses_ground_truth or cls.requires_fit:
+                raise ValueError(f"matcher_hypotheses: {name!r} uses ground truth or needs training; only axiomatic matchers are accepted")
         return settings
+
+    def _matcher_hypotheses(self, source: TriangleMesh, target: TriangleMesh, samples_2: IndexArray) -> Iterator[Hypothesis]:
+        import inspect
+
+        from topomatch.matching import MATCHERS
+
+        for name in self.matcher_hypotheses:
+            cls = MATCHERS[name]
+            kw = {"random_state": 0} if "random_state" in inspect.signature(cls).parameters else {}
+            p = np.asarray(cls(**kw).match(source, target).p2p_21, dtype=np.int64)
+            tv = samples_2 if np.mean(p[samples_2] >= 0) > 0.5 else np.flatnonzero(p >= 0)
+            tv = tv[p[tv] >= 0]
+            if len(tv) >= 4:
+                yield Hypothesis(name, p[tv], tv)
 
     def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
         settings = self._check()
@@ -270,8 +306,15 @@ class DeformMatcher(Matcher):
         )
         graph = build_deformation_graph(source.vertices, source.faces, self.coarse_nodes)
         hyps, results = [], []
-        for h in spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout):
-            pairs = DataPairs(h.p2p, W[s2], Nt[s2], np.ones(len(s2)))
+        from itertools import chain
+
+        candidates = chain(
+            spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout),
+            self._matcher_hypotheses(source, target, s2),
+        )
+        for h in candidates:
+            tv = s2 if h.target is None else h.target
+            pairs = DataPairs(h.p2p, W[tv], Nt[tv], np.ones(len(tv)))
             r = register(source.vertices, source.faces, W, target.faces, pairs, coarse, graph=graph, samples=(s1, s2))
             hyps.append(h)
             results.append(r)
