@@ -63,3 +63,23 @@ def test_data_info(capsys):
     rc = main(["data", "info", "--data", str(DATA), "--resolution", "low"])
     out = capsys.readouterr().out
     assert rc == 0 and "kid25" in out and "low res" in out
+
+
+@pytest.mark.data
+def test_evaluate_rescores_a_run_directory_maps(tmp_path, topkids_low, capsys):
+    """``.npz`` map files of a run directory (their ``p2p_21``) are read; other ``.npz`` are refused."""
+    from topomatch.datasets.base import ground_truth_21
+    from topomatch.evaluation.protocols import get_protocol
+
+    sub = tmp_path / "maps"
+    sub.mkdir()
+    pr = get_protocol("topkids25").pairs(topkids_low, "test")[0]
+    g = ground_truth_21(topkids_low[pr.target], topkids_low[pr.source])
+    np.savez(sub / f"{pr.id}.npz", p2p_21=g.indices[g.indptr[:-1]], seconds=1.0)
+    rc = main(["evaluate", str(sub), "--protocol", "topkids25", "--split", "test", "--data", str(DATA), "--out", str(tmp_path / "ev"), "--geodesic", "heat", "--quiet"])
+    assert rc == 0
+    s = json.loads((tmp_path / "ev" / "summary.json").read_text())["methods"]["submission"]["topkids25"]
+    assert s["n_pairs"] == 1 and s["mean_error"]["heat"] == 0.0
+    np.savez(sub / f"{pr.id}.npz", other=np.zeros(3))
+    rc = main(["evaluate", str(sub), "--protocol", "topkids25", "--split", "test", "--data", str(DATA), "--out", str(tmp_path / "ev2"), "--geodesic", "heat", "--quiet"])
+    assert rc == 2 and "p2p_21" in capsys.readouterr().err

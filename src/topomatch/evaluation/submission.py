@@ -25,14 +25,14 @@ __all__ = ["evaluate_submission", "find_map_file", "read_map_file"]
 
 logger = logging.getLogger(__name__)
 
-_SUFFIXES = (".txt", ".map", ".corr", ".vts", ".npy", "")
+_SUFFIXES = (".txt", ".map", ".corr", ".vts", ".npy", ".npz", "")
 
 
 def find_map_file(folder: Path, target: str, source: str) -> Path | None:
     """The file holding the map of ``target``'s vertices onto ``source``.
 
     Accepted names: ``<target>-<source>``, ``<target>_<source>``, ``<target>_to_<source>``
-    with suffix ``.txt``, ``.map``, ``.corr``, ``.vts``, ``.npy`` or none.
+    with suffix ``.txt``, ``.map``, ``.corr``, ``.vts``, ``.npy``, ``.npz`` or none.
     """
     for stem in (f"{target}-{source}", f"{target}_{source}", f"{target}_to_{source}"):
         for suf in _SUFFIXES:
@@ -45,12 +45,23 @@ def find_map_file(folder: Path, target: str, source: str) -> Path | None:
 def read_map_file(path: PathType, n_target: int, n_source: int, source_faces: IndexArray) -> IndexArray:
     """Read a map file of any supported kind into ``p2p_21`` (zero-based, ``-1`` = unmatched).
 
-    ``.npy`` holds zero-based indices. Text files with four columns are SHREC'16
+    ``.npy`` holds zero-based indices; ``.npz`` is a map file of a run directory
+    (``RUN/maps/<method>/<pair>.npz``, its ``p2p_21`` array), so a run's maps can be
+    re-scored, e.g. without symmetric credit. Text files with four columns are SHREC'16
     submissions (``triangle w1 w2 w3``); with one column, one-based vertex indices.
     """
     path = Path(path)
-    if path.suffix == ".npy":
-        p = np.load(path)
+    if path.suffix in (".npy", ".npz"):
+        try:
+            if path.suffix == ".npz":
+                with np.load(path, allow_pickle=False) as z:
+                    if "p2p_21" not in z.files:
+                        raise ValueError(f"{path}: a .npz map needs a 'p2p_21' array (found {', '.join(z.files) or 'none'})")
+                    p = z["p2p_21"]
+            else:
+                p = np.load(path, allow_pickle=False)
+        except (OSError, EOFError) as err:
+            raise ValueError(f"{path}: cannot read ({err})") from None
         if p.shape != (n_target,) or not np.issubdtype(p.dtype, np.integer):
             raise ValueError(f"{path}: expected {n_target} integer zero-based indices, found shape {p.shape} dtype {p.dtype}")
         if p.size and (p.min() < -1 or p.max() >= n_source):
