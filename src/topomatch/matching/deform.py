@@ -24,12 +24,19 @@ import logging
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from topomatch.deform.graph import build_deformation_graph
-from topomatch.deform.register import DataPairs, RegistrationSchedule, nearest_compatible, register
+from topomatch.deform.register import (
+    DataPairs,
+    RegistrationResult,
+    RegistrationSchedule,
+    nearest_compatible,
+    register,
+)
 from topomatch.maps.fmap import (
     FmapWeights,
     descriptor_coefficients,
@@ -278,22 +285,31 @@ class DeformMatcher(Matcher):
         return settings
 
     def _matcher_hypotheses(self, source: TriangleMesh, target: TriangleMesh, samples_2: IndexArray) -> Iterator[Hypothesis]:
-        import inspect
-
-        from topomatch.matching import MATCHERS
+        from topomatch.matching import make_matcher
 
         for name in self.matcher_hypotheses:
-            cls = MATCHERS[name]
-            kw = {"random_state": 0} if "random_state" in inspect.signature(cls).parameters else {}
-            p = np.asarray(cls(**kw).match(source, target).p2p_21, dtype=np.int64)
+            m = make_matcher(name)
+            if "random_state" in m.get_params():
+                m.set_params(random_state=0)
+            p = np.asarray(m.match(source, target).p2p_21, dtype=np.int64)
             tv = samples_2 if np.mean(p[samples_2] >= 0) > 0.5 else np.flatnonzero(p >= 0)
             tv = tv[p[tv] >= 0]
             if len(tv) >= 4:
                 yield Hypothesis(name, p[tv], tv)
 
-    def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
+    def verify_hypotheses(self, source: TriangleMesh, target: TriangleMesh) -> tuple[list[Hypothesis], list[RegistrationResult]]:
+        """Steps 1-2: every hypothesis with its coarse registration (in the order tried).
+
+        Stops after the first hypothesis whose residual is below ``accept_residual``.
+
+        Returns
+        -------
+        hypotheses : list of Hypothesis
+        results : list of RegistrationResult
+            The coarse registration seeded by each hypothesis; ``residual`` is the
+            selection criterion.
+        """
         settings = self._check()
-        t0 = time.perf_counter()
         s1 = fast_fps(source.vertices, self.n_samples)
         s2 = fast_fps(target.vertices, self.n_samples)
         W = target.vertices
@@ -306,8 +322,6 @@ class DeformMatcher(Matcher):
         )
         graph = build_deformation_graph(source.vertices, source.faces, self.coarse_nodes)
         hyps, results = [], []
-        from itertools import chain
-
         candidates = chain(
             spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout),
             self._matcher_hypotheses(source, target, s2),
@@ -321,6 +335,13 @@ class DeformMatcher(Matcher):
             logger.debug("%s: residual %.4f distortion %.3f", h.label, r.residual, r.distortion)
             if r.residual < self.accept_residual:
                 break
+        return hyps, results
+
+    def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
+        t0 = time.perf_counter()
+        hyps, results = self.verify_hypotheses(source, target)
+        W = target.vertices
+        Nt = target.vertex_normals
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
         fine = RegistrationSchedule(
