@@ -320,8 +320,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     how = "loaded from the cache" if res.from_cache else f"trained in {res.seconds:.1f} s"
-    used = list(getattr(res.matcher, "training_shapes_", []) or res.shapes)
-    print(f"{args.method}: {how} on {len(used)} training shapes ({', '.join(used)})", file=sys.stderr)
+    print(f"{args.method}: {how} on {len(res.training_shapes)} training shapes ({', '.join(res.training_shapes)})", file=sys.stderr)
     if res.model_path is not None:
         print(f"model written to {res.model_path}", file=sys.stderr)
     return 0

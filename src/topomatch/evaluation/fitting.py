@@ -32,6 +32,9 @@ class FitResult:
         The fitted matcher.
     shapes : list of str
         Names of the shapes given to ``fit``.
+    training_shapes : list of str
+        The shapes the model was trained on: the matcher's ``training_shapes_`` where it
+        records them (e.g. ``rf`` with a ``training_shapes`` subset), else ``shapes``.
     seconds : float
         Wall time of ``fit`` (near zero when the model came from the cache).
     from_cache : bool
@@ -43,6 +46,7 @@ class FitResult:
 
     matcher: Matcher
     shapes: list[str]
+    training_shapes: list[str]
     seconds: float
     from_cache: bool
     model_path: Path | None = None
@@ -104,4 +108,5 @@ def fit_method(
     path = matcher.save_model(out) if out is not None else None  # type: ignore[attr-defined]
     info = {"training_seconds": getattr(matcher, "fit_seconds_", seconds)}
     logger.info("fitted %s on %d shapes in %.1f s%s", method, len(names), seconds, " (from the cache)" if from_cache else "")
-    return FitResult(matcher, list(names), seconds, from_cache, path, info)
+    trained_on = [str(n) for n in getattr(matcher, "training_shapes_", None) or names]
+    return FitResult(matcher, list(names), trained_on, seconds, from_cache, path, info)
