@@ -8,6 +8,7 @@ import pytest
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, register
 from topomatch.matching import MATCHERS, make_matcher
+from topomatch.matching.deform import rigid_hypotheses
 from topomatch.mesh import TriangleMesh
 
 from ._fmap_shapes import bumpy, shuffled
@@ -70,8 +71,8 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair):
     err = np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1) / np.sqrt(src.area)
     assert np.mean(err) < 0.05  # tangential sliding on this smooth shape costs ~0.04
     assert c.info["hypothesis"] in c.info["residuals"]
-    # the default matcher hypotheses (ge, em) were verified too
-    assert {"ge", "em"} <= set(c.info["residuals"])
+    # the default rigid hypotheses were verified too (as given + four principal-axis frames)
+    assert {"rigid as-given", "rigid axes +++", "rigid axes +--", "rigid axes -+-", "rigid axes --+"} <= set(c.info["residuals"])
     # deterministic
     np.testing.assert_array_equal(m.match(src, tgt).p2p_21, c.p2p_21)
 
@@ -91,11 +92,44 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", matcher_hypotheses=("rf",)).match(src, tgt)
     with pytest.raises(ValueError, match="unknown or invalid"):
         make_matcher("deform", matcher_hypotheses=("nosuch",)).match(src, tgt)
+    with pytest.raises(ValueError, match="rigid_frames"):
+        make_matcher("deform", rigid_frames=("upright",)).match(src, tgt)
 
 
 def test_deform_matcher_hypotheses_from_other_matchers(pair):
     src, tgt, _ = pair
-    m = make_matcher("deform", hypotheses=(("hks", 10, True),), matcher_hypotheses=("em",),
+    m = make_matcher("deform", hypotheses=(("hks", 10, True),), matcher_hypotheses=("em",), rigid_frames=(),
                      n_samples=800, coarse_nodes=80, fine_nodes=200)
     c = m.match(src, tgt)
     assert set(c.info["residuals"]) == {"hks k=10 reversing", "em"}
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    k = axis / np.linalg.norm(axis)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def test_rigid_hypotheses_recover_a_rotated_scaled_moved_copy():
+    src = bumpy(4, mirror_symmetric=False)
+    tgt0, perm = shuffled(src, seed=5)  # tgt0 vertex i is source vertex perm[i]
+    R = _rotation(np.array([1.0, 2.0, 0.5]), 2.0)
+    tgt = TriangleMesh(1.7 * tgt0.vertices @ R.T + np.array([3.0, -1.0, 2.0]), tgt0.faces)
+    s1 = np.arange(0, src.n_vertices, 3)
+    s2 = np.arange(0, tgt.n_vertices, 3)
+    scale = np.sqrt(src.area)
+    errors = {}
+    for h in rigid_hypotheses(src, tgt, s1, s2):
+        assert h.p2p.shape == s2.shape and h.target is None
+        errors[h.label] = np.mean(np.linalg.norm(src.vertices[h.p2p] - src.vertices[perm[s2]], axis=1)) / scale
+    assert len(errors) == 5 and "rigid as-given" in errors
+    # one of the four principal-axis frames is the true rotation: exact up to the nearest vertex
+    assert min(v for k, v in errors.items() if k.startswith("rigid axes")) < 0.01
+    # the identity is wrong for this rotation (the ICP cannot undo 115 degrees)
+    assert errors["rigid as-given"] > 0.1
+    # unrotated data: "as given" alone is right
+    moved = TriangleMesh(1.7 * tgt0.vertices + 2.0, tgt0.faces)
+    (h,) = rigid_hypotheses(src, moved, s1, s2, ("as-given",))
+    assert np.mean(np.linalg.norm(src.vertices[h.p2p] - src.vertices[perm[s2]], axis=1)) / scale < 0.01
+    with pytest.raises(ValueError, match="rigid frames"):
+        list(rigid_hypotheses(src, moved, s1, s2, ("sideways",)))
