@@ -127,10 +127,6 @@ class GraphDeformation:
         skin = self.graph.skin.tocsr()
         skin.sort_indices()
         self._skin = skin
-        self._indptr = skin.indptr
-        self._rows = np.repeat(np.arange(skin.shape[0]), np.diff(skin.indptr))
-        self._cols, self._w = skin.indices, skin.data
-        self._offsets = self.vertices[self._rows] - self.graph.rest[self._cols]  # (nnz, 3)
         links = self.graph.links
         self._dir_a = np.r_[links[:, 0], links[:, 1]]
         self._dir_b = np.r_[links[:, 1], links[:, 0]]
@@ -141,16 +137,22 @@ class GraphDeformation:
         self._D = (self._Ib - self._Ia).tocsr()
 
     # ---- evaluation ------------------------------------------------------------------------
-    def _row_sum(self, vals: FloatArray) -> FloatArray:
-        """Sum per-nonzero values of the skinning matrix over each vertex row."""
-        return np.add.reduceat(vals, self._indptr[:-1], axis=0)
+    def _affine_part(self, subset: IndexArray | None = None, skin_rows: sparse.csr_matrix | None = None) -> FloatArray:
+        """``a_i = sum_q w_iq R_q (v_i - g0_q)`` for all vertices or a subset, shape (n or len(subset), 3).
 
-    def _rotated_offsets(self) -> FloatArray:
-        return np.einsum("kab,kb->ka", self.rotations[self._cols], self._offsets)
-
-    def _affine_part(self) -> FloatArray:
-        """``a_i = sum_q w_iq R_q (v_i - g0_q)``, shape (n, 3)."""
-        return self._row_sum(self._w[:, None] * self._rotated_offsets())
+        Evaluated as ``(sum_q w_iq R_q) v_i - sum_q w_iq R_q g0_q``: two sparse products
+        with the skinning weights, no per-(vertex, node) rotation copies.
+        ``skin_rows`` may pass ``skin[subset]`` when the caller already has it.
+        """
+        m = self.graph.n_nodes
+        if subset is None:
+            S, v = self._skin, self.vertices
+        else:
+            S = self._skin[subset] if skin_rows is None else skin_rows
+            v = self.vertices[subset]
+        Rg0 = np.einsum("mab,mb->ma", self.rotations, self.graph.rest)
+        blend = np.asarray(S @ np.c_[self.rotations.reshape(m, 9), Rg0])
+        return np.einsum("nab,nb->na", blend[:, :9].reshape(-1, 3, 3), v) - blend[:, 9:]
 
     def deformed(self) -> FloatArray:
         """Deformed source vertices, shape (n, 3)."""
@@ -210,7 +212,7 @@ class GraphDeformation:
         rhs = self._D @ (wl[:, None] * d)
         # data
         P = self._skin[pairs.source]  # (p, m)
-        resid = pairs.points - self._affine_part()[pairs.source]  # y - a_i, (p, 3)
+        resid = pairs.points - self._affine_part(pairs.source, P)  # y - a_i, (p, 3)
         c = pairs.weights
         data_scale = float(c.sum()) / max(float(wl.sum()), 1e-300)
         reg = alpha * data_scale
