@@ -8,11 +8,16 @@ data behind the "coarse-level study" rows of ``docs/flagship.md``: the oracle ch
 (best error per pair) against the residual's choice. Use it on training pairs only.
 
     python benchmarks/deform_hypotheses.py --data DATA kid01 kid02 kid03 --json out.jsonl
+    python benchmarks/deform_hypotheses.py --data DATA --param "matcher_hypotheses=('ge','em')" kid01
+
+``--param KEY=VALUE`` sets a ``DeformMatcher`` parameter (value parsed as a Python
+literal), e.g. to compare verification schedules or add hypotheses.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import os
 
 from _common import emit_row
@@ -31,12 +36,22 @@ def main() -> None:
     ap.add_argument("targets", nargs="+", help="target shapes, e.g. kid01 kid02")
     ap.add_argument("--data", default=os.environ.get("TOPOMATCH_DATA"))
     ap.add_argument("--json", default=None, help="append one JSON line per hypothesis")
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="DeformMatcher parameter (repeatable)")
     args = ap.parse_args()
     if not args.data:
         ap.error("give --data or set TOPOMATCH_DATA")
     coll = load_topkids(args.data, "low")
     prot = get_protocol("topkids25")
-    m = DeformMatcher()
+    params = {}
+    for item in args.param:
+        key, sep, raw = item.partition("=")
+        if not sep:
+            ap.error(f"--param expects KEY=VALUE, got {item!r}")
+        try:
+            params[key] = ast.literal_eval(raw)
+        except (ValueError, SyntaxError):
+            params[key] = raw
+    m = DeformMatcher(**params)
     ref = coll.reference
     src = coll[ref].mesh
     for t in args.targets:

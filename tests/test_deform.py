@@ -73,8 +73,9 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair):
     assert c.info["hypothesis"] in c.info["residuals"]
     # the default rigid hypotheses were verified too (as given + four principal-axis frames)
     assert {"rigid as-given", "rigid axes +++", "rigid axes +--", "rigid axes -+-", "rigid axes --+"} <= set(c.info["residuals"])
-    # deterministic
+    # deterministic, and the same with the verification on one thread
     np.testing.assert_array_equal(m.match(src, tgt).p2p_21, c.p2p_21)
+    np.testing.assert_array_equal(m.set_params(n_threads=1).match(src, tgt).p2p_21, c.p2p_21)
 
 
 def test_deform_matcher_rejects_bad_parameters(pair):
@@ -92,6 +93,8 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", matcher_hypotheses=("rf",)).match(src, tgt)
     with pytest.raises(ValueError, match="unknown or invalid"):
         make_matcher("deform", matcher_hypotheses=("nosuch",)).match(src, tgt)
+    with pytest.raises(ValueError, match="n_threads"):
+        make_matcher("deform", n_threads=0).match(src, tgt)
     with pytest.raises(ValueError, match="rigid_frames"):
         make_matcher("deform", rigid_frames=("upright",)).match(src, tgt)
 

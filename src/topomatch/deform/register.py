@@ -280,12 +280,12 @@ def nearest_compatible(
     index : ndarray, shape (q,)
     distance : ndarray, shape (q,)
     """
-    d, idx = tree.query(points, k=1)
+    d, idx = tree.query(points, k=1, workers=-1)
     if k == 1:
         return idx, d
     bad = np.flatnonzero(np.einsum("qc,qc->q", normals, ref_normals[idx]) < min_cos)
     if bad.size:
-        dk, ik = tree.query(points[bad], k=k)
+        dk, ik = tree.query(points[bad], k=k, workers=-1)
         cos = np.einsum("qc,qkc->qk", normals[bad], ref_normals[ik])
         ok = cos >= min_cos
         first = np.where(ok.any(axis=1), np.argmax(ok, axis=1), 0)

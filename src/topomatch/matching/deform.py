@@ -25,8 +25,10 @@
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
 
@@ -338,6 +340,11 @@ class DeformMatcher(Matcher):
         unmatched) contributes its matched target vertices. Default: none (``("ge",
         "em")`` was the default before the rigid hypotheses; with them, these two only
         win wrongly, see ``docs/flagship.md``).
+    n_threads : int or None
+        Threads for the verification registrations (they release the GIL in their
+        tree queries and array operations); ``None``: the CPU count, at most 4. The
+        result does not depend on it. Ignored when ``accept_residual > 0`` (the early
+        exit needs them in order).
     """
 
     name = "deform"
@@ -359,6 +366,7 @@ class DeformMatcher(Matcher):
         n_refine: int = 1,
         rigid_frames: tuple[str, ...] = RIGID_FRAMES,
         matcher_hypotheses: tuple[str, ...] = (),
+        n_threads: int | None = None,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -374,6 +382,7 @@ class DeformMatcher(Matcher):
         self.n_refine = n_refine
         self.rigid_frames = rigid_frames
         self.matcher_hypotheses = matcher_hypotheses
+        self.n_threads = n_threads
 
     def _check(self) -> list[tuple[str, int, bool]]:
         settings = []
@@ -383,6 +392,8 @@ class DeformMatcher(Matcher):
             settings.append((str(h[0]), int(h[1]), bool(h[2])))
         if not settings:
             raise ValueError("hypotheses must not be empty")
+        if self.n_threads is not None and (not isinstance(self.n_threads, (int, np.integer)) or self.n_threads < 1):
+            raise ValueError(f"n_threads must be a positive integer or None, got {self.n_threads!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_refine", "k_zoomout"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
@@ -443,15 +454,28 @@ class DeformMatcher(Matcher):
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
             self._matcher_hypotheses(source, target, s2),
         )
-        for h in candidates:
+
+        def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
             pairs = DataPairs(h.p2p, W[tv], Nt[tv], np.ones(len(tv)))
             r = register(source.vertices, source.faces, W, target.faces, pairs, coarse, graph=graph, samples=(s1, s2))
-            hyps.append(h)
-            results.append(r)
             logger.debug("%s: residual %.4f distortion %.3f", h.label, r.residual, r.distortion)
-            if r.residual < self.accept_residual:
-                break
+            return r
+
+        if self.accept_residual > 0:
+            for h in candidates:
+                hyps.append(h)
+                results.append(verify(h))
+                if results[-1].residual < self.accept_residual:
+                    break
+            return hyps, results
+        hyps = list(candidates)
+        n = self.n_threads if self.n_threads is not None else min(4, os.cpu_count() or 1)
+        if n > 1 and len(hyps) > 1:
+            with ThreadPoolExecutor(max_workers=n) as pool:
+                results = list(pool.map(verify, hyps))
+        else:
+            results = [verify(h) for h in hyps]
         return hyps, results
 
     def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102

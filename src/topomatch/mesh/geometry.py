@@ -49,18 +49,15 @@ def face_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
 def vertex_areas(vertices: FloatArray, faces: IndexArray) -> FloatArray:
     """Barycentric lumped vertex areas (a third of each incident face), shape (n_vertices,)."""
     a = face_areas(vertices, faces) / 3.0
-    out = np.zeros(len(vertices))
-    for i in range(3):
-        np.add.at(out, faces[:, i], a)
-    return out
+    # bincount accumulates in input order, like three sequential np.add.at calls (same bits)
+    return np.bincount(np.asarray(faces).T.ravel(), weights=np.tile(a, 3), minlength=len(vertices))
 
 
 def vertex_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
     """Area-weighted unit vertex normals, shape (n_vertices, 3); zero on isolated vertices."""
     c = _cross(vertices, faces)
-    out = np.zeros((len(vertices), 3))
-    for i in range(3):
-        np.add.at(out, faces[:, i], c)
+    idx = np.asarray(faces).T.ravel()
+    out = np.stack([np.bincount(idx, weights=np.tile(c[:, k], 3), minlength=len(vertices)) for k in range(3)], axis=1)
     n = np.linalg.norm(out, axis=1, keepdims=True)
     return np.divide(out, n, out=np.zeros_like(out), where=n > 0)
 
