@@ -10,25 +10,23 @@ data behind the "coarse-level study" rows of ``docs/flagship.md``: the oracle ch
     python benchmarks/deform_hypotheses.py --data DATA kid01 kid02 kid03 --json out.jsonl
     python benchmarks/deform_hypotheses.py --data DATA --param "matcher_hypotheses=('ge','em')" kid01
 
-``--param KEY=VALUE`` sets a ``DeformMatcher`` parameter (value parsed as a Python
-literal), e.g. to compare verification schedules or add hypotheses.
+``--param KEY=VALUE`` sets a ``DeformMatcher`` parameter (parsed as ``topomatch bench
+--param`` does: a Python literal, else a string), e.g. to compare verification schedules
+or add hypotheses.
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
 import os
 
 from _common import emit_row
-from scipy.spatial import cKDTree
 
+from topomatch.cli.main import _parse_params
 from topomatch.datasets.topkids import load_topkids
-from topomatch.deform.register import nearest_compatible
 from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps
-from topomatch.matching.deform import DeformMatcher
-from topomatch.mesh.geometry import vertex_normals
+from topomatch.matching.deform import DeformMatcher, map_from_deformed
 
 
 def main() -> None:
@@ -42,24 +40,14 @@ def main() -> None:
         ap.error("give --data or set TOPOMATCH_DATA")
     coll = load_topkids(args.data, "low")
     prot = get_protocol("topkids25")
-    params = {}
-    for item in args.param:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            ap.error(f"--param expects KEY=VALUE, got {item!r}")
-        try:
-            params[key] = ast.literal_eval(raw)
-        except (ValueError, SyntaxError):
-            params[key] = raw
-    m = DeformMatcher(**params)
+    m = DeformMatcher(**_parse_params(args.param, ["deform"]).get("deform", {}))
     ref = coll.reference
     src = coll[ref].mesh
     for t in args.targets:
         tgt = coll[t].mesh
         maps, info = {}, {}
         for h, r in zip(*m.verify_hypotheses(src, tgt)):
-            p2p, _ = nearest_compatible(tgt.vertices, tgt.vertex_normals, cKDTree(r.deformed), vertex_normals(r.deformed, src.faces), min_cos=0.3)
-            maps[(h.label, f"{t}-{ref}")] = p2p
+            maps[(h.label, f"{t}-{ref}")] = map_from_deformed(tgt, r.deformed, src.faces)
             info[h.label] = {"residual": r.residual, "distortion": r.distortion}
         for s in score_maps(coll, prot, maps, geodesic="heat"):
             emit_row({"pair": s.pair, "hypothesis": s.method, "error_x100": 100 * s.mean_error, **info[s.method]}, args.json)

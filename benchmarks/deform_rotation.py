@@ -62,5 +62,6 @@ def main() -> None:
     for variant, (tot, n) in pooled.items():
         emit_row({"variant": variant, "pairs": len(args.targets), "mean_error_x100_pooled": 100 * tot / n}, args.json)
 
+
 if __name__ == "__main__":
     main()

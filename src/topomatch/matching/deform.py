@@ -56,10 +56,11 @@ from topomatch.maps.zoomout import _fmap_from_p2p_rows, zoomout_schedule
 from topomatch.matching.base import Correspondence, Matcher
 from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
-from topomatch.mesh.geometry import face_areas, vertex_normals
+from topomatch.mesh.geometry import vertex_normals
+from topomatch.mesh.sampling import farthest_point_sampling
 from topomatch.typing import FloatArray, IndexArray
 
-__all__ = ["DeformMatcher", "Hypothesis", "rigid_hypotheses", "spectral_hypotheses"]
+__all__ = ["DeformMatcher", "Hypothesis", "map_from_deformed", "rigid_hypotheses", "spectral_hypotheses"]
 
 logger = logging.getLogger(__name__)
 
@@ -235,7 +236,7 @@ def rigid_hypotheses(
     V = source.vertices
     W = target.vertices[samples_2]
     Nw = target.vertex_normals[samples_2]
-    scale = float(np.sqrt(face_areas(target.vertices, target.faces).sum() / face_areas(V, source.faces).sum()))
+    scale = float(np.sqrt(target.area / source.area))
     c1 = V.mean(axis=0)
     c2 = target.vertices.mean(axis=0)
     starts: list[tuple[str, FloatArray]] = []
@@ -256,34 +257,26 @@ def rigid_hypotheses(
         yield Hypothesis(label, np.asarray(j, dtype=np.int64))
 
 
-def fast_fps(points: FloatArray, n_samples: int) -> IndexArray:
-    """Euclidean farthest-point sampling from point 0 (same result as the mesh module's, faster).
+def map_from_deformed(target: TriangleMesh, deformed: FloatArray, source_faces: IndexArray) -> IndexArray:
+    """Read a map off a registration: each target vertex takes the nearest deformed source vertex.
+
+    Among the nearest deformed source vertices, the first whose normal is compatible
+    with the target's (cosine >= 0.3) is taken.
+
+    Parameters
+    ----------
+    target : TriangleMesh
+    deformed : ndarray, shape (n_source, 3)
+        Deformed source vertices.
+    source_faces : ndarray, shape (f1, 3)
 
     Returns
     -------
-    ndarray, shape (n_samples,)
+    ndarray, shape (n_target,)
+        Source vertex for each target vertex.
     """
-    x, y, z = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
-    n = len(x)
-    n_samples = min(n_samples, n)
-    out = np.empty(n_samples, dtype=np.int64)
-    out[0] = 0
-    mind = (x - x[0]) ** 2 + (y - y[0]) ** 2 + (z - z[0]) ** 2
-    d = np.empty_like(mind)
-    t = np.empty_like(mind)
-    for i in range(1, n_samples):
-        j = int(np.argmax(mind))
-        out[i] = j
-        np.subtract(x, x[j], out=d)
-        np.multiply(d, d, out=d)
-        np.subtract(y, y[j], out=t)
-        np.multiply(t, t, out=t)
-        d += t
-        np.subtract(z, z[j], out=t)
-        np.multiply(t, t, out=t)
-        d += t
-        np.minimum(mind, d, out=mind)
-    return out
+    p2p, _ = nearest_compatible(target.vertices, target.vertex_normals, cKDTree(deformed), vertex_normals(deformed, source_faces), min_cos=0.3)
+    return p2p
 
 
 DEFAULT_SETTINGS: tuple[tuple[str, int, bool], ...] = (
@@ -438,8 +431,8 @@ class DeformMatcher(Matcher):
             selection criterion.
         """
         settings = self._check()
-        s1 = fast_fps(source.vertices, self.n_samples)
-        s2 = fast_fps(target.vertices, self.n_samples)
+        s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0)
+        s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0)
         W = target.vertices
         Nt = target.vertex_normals
         coarse = RegistrationSchedule(
@@ -449,7 +442,6 @@ class DeformMatcher(Matcher):
             alpha_icp=tuple(self.coarse_alpha),
         )
         graph = build_deformation_graph(source.vertices, source.faces, self.coarse_nodes)
-        hyps, results = [], []
         candidates = chain(
             spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout),
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
@@ -464,6 +456,7 @@ class DeformMatcher(Matcher):
             return r
 
         if self.accept_residual > 0:
+            hyps, results = [], []
             for h in candidates:
                 hyps.append(h)
                 results.append(verify(h))
@@ -483,7 +476,6 @@ class DeformMatcher(Matcher):
         t0 = time.perf_counter()
         hyps, results = self.verify_hypotheses(source, target)
         W = target.vertices
-        Nt = target.vertex_normals
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
         fine = RegistrationSchedule(
@@ -497,8 +489,7 @@ class DeformMatcher(Matcher):
             if best is None or r.residual < best[1].residual:
                 best = (i, r)
         i_best, r_best = best
-        Nd = vertex_normals(r_best.deformed, source.faces)
-        p2p, _ = nearest_compatible(W, Nt, cKDTree(r_best.deformed), Nd, min_cos=0.3)
+        p2p = map_from_deformed(target, r_best.deformed, source.faces)
         t2 = time.perf_counter()
         info = {
             "hypothesis": hyps[i_best].label,
