@@ -39,6 +39,19 @@ def test_graph_structure(pair):
     assert g.labels.shape == (src.n_vertices,) and set(np.unique(g.labels)) == set(range(80))
 
 
+def test_registration_leaves_a_shared_graph_untouched(pair):
+    # DeformMatcher runs several registrations on one graph in threads: nothing may mutate it
+    src, tgt, _ = pair
+    g = build_deformation_graph(src.vertices, src.faces, 60)
+    assert g.skin.has_sorted_indices
+    before = (g.skin.indptr.copy(), g.skin.indices.copy(), g.skin.data.copy(), g.rest.copy())
+    pts = np.arange(0, src.n_vertices, 40)
+    pairs = DataPairs(pts, tgt.vertices[pts], tgt.vertex_normals[pts], np.ones(len(pts)))
+    register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, RegistrationSchedule(n_nodes=60, fit_iterations=2, icp_iterations=2), graph=g)
+    after = (g.skin.indptr, g.skin.indices, g.skin.data, g.rest)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after))
+
+
 def test_registration_from_sparse_correct_pairs_recovers_the_map(pair):
     src, tgt, perm = pair
     inv = np.argsort(perm)  # source vertex -> target vertex

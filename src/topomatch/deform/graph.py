@@ -141,7 +141,8 @@ def build_deformation_graph(
             skin[i, node_of_vertex[i]] = 1.0
         skin = skin.tocsr()
         tot = np.asarray(skin.sum(axis=1)).ravel()
-    skin = sparse.diags(1.0 / tot) @ skin
+    skin = (sparse.diags(1.0 / tot) @ skin).tocsr()
+    skin.sort_indices()  # canonical order, so users never need to sort (and mutate) a shared graph
     del dist
     return DeformationGraph(
         nodes=nodes,
@@ -149,6 +150,6 @@ def build_deformation_graph(
         links=pairs.astype(np.int64),
         link_weights=np.asarray(weights, dtype=np.float64),
         labels=node_of_vertex,
-        skin=skin.tocsr(),
+        skin=skin,
         spacing=spacing,
     )

@@ -124,9 +124,10 @@ class GraphDeformation:
         self.rotations = np.tile(np.eye(3), (m, 1, 1))
         self.positions = self.graph.rest.copy()
         self.link_scale = np.ones(len(self.graph.links))
+        # never sort the graph's matrix in place: one graph is shared by registrations
+        # running on several threads (DeformMatcher's verification)
         skin = self.graph.skin.tocsr()
-        skin.sort_indices()
-        self._skin = skin
+        self._skin = skin if skin.has_sorted_indices else skin.sorted_indices()
         links = self.graph.links
         self._dir_a = np.r_[links[:, 0], links[:, 1]]
         self._dir_b = np.r_[links[:, 1], links[:, 0]]
