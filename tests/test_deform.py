@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from topomatch.deform.graph import build_deformation_graph
-from topomatch.deform.register import DataPairs, RegistrationSchedule, register
+from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
 from topomatch.matching import MATCHERS, make_matcher
-from topomatch.matching.deform import rigid_hypotheses
+from topomatch.matching.deform import rigid_hypotheses, swap_regions
 from topomatch.mesh import TriangleMesh
 
 from ._fmap_shapes import bumpy, shuffled
@@ -71,6 +71,53 @@ def test_registration_needs_pairs_or_a_start(pair):
     src, tgt, _ = pair
     with pytest.raises(ValueError, match="init_pairs or a start"):
         register(src.vertices, src.faces, tgt.vertices, tgt.faces, None)
+    with pytest.raises(ValueError, match="start positions have shape"):
+        register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, start=src.vertices[:10])
+
+
+def test_registration_from_start_positions(pair):
+    # a start given as positions (e.g. assembled by swap_regions) seeds the registration
+    src, tgt, perm = pair
+    sched = RegistrationSchedule(n_nodes=120, fit_iterations=0, icp_iterations=6)
+    exact = np.empty_like(src.vertices)
+    exact[perm] = tgt.vertices  # source vertex -> its true position on the target
+    r = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, start=exact)
+    off = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, start=exact + 0.5 * np.sqrt(src.area))
+    assert r.residual < 0.01 < off.residual
+    assert np.linalg.norm(r.deformed - exact, axis=1).mean() < 0.04 * np.sqrt(src.area)  # tangential sliding ~0.02
+
+
+def _blob(center: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return np.exp(-np.sum((x - center) ** 2, axis=1) / 0.05)[:, None]
+
+
+def test_swap_regions_takes_the_region_another_registration_got_right(pair):
+    from scipy.spatial import cKDTree
+
+    src, tgt, perm = pair
+    exact = np.empty_like(src.vertices)
+    exact[perm] = tgt.vertices
+    scale = np.sqrt(src.area)
+    X = src.vertices
+    far = int(np.argmax(np.linalg.norm(X - X[0], axis=1)))
+    # two registrations, each right except for a blob pushed off the surface, on opposite sides
+    a = exact + 0.3 * scale * _blob(X[0], X) * np.array([0.0, 0.0, 1.0])
+    b = exact + 0.3 * scale * _blob(X[far], X) * np.array([0.0, 1.0, 0.0])
+    tree = cKDTree(tgt.vertices)
+    res = [fit_residual(v, src.faces, tgt.vertices, tgt.vertex_normals, tree, scale=scale) for v in (a, b)]
+    out, r, swaps = swap_regions(src, tgt, [a, b], threshold=0.05)
+    # the blob of A comes from B, B's own blob is not taken: the exact registration
+    wrong_a = np.linalg.norm(a - exact, axis=1) > 0.05 * scale
+    assert swaps == [(1, int(wrong_a.sum()))]
+    assert r < min(res)
+    np.testing.assert_allclose(out[wrong_a], exact[wrong_a])
+    np.testing.assert_allclose(np.linalg.norm(out - exact, axis=1).max(), 0.05 * scale, rtol=0.2)  # only seams remain
+    # nothing to gain: the best registration is kept as is
+    out2, _, swaps2 = swap_regions(src, tgt, [exact, b], threshold=0.05)
+    assert swaps2 == [] and np.array_equal(out2, exact)
+    # regions below min_vertices are ignored
+    _, _, swaps3 = swap_regions(src, tgt, [a, b], threshold=0.05, min_vertices=len(X))
+    assert swaps3 == []
 
 
 def test_deform_matcher_on_a_bent_shuffled_copy(pair):
@@ -110,6 +157,10 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", n_threads=0).match(src, tgt)
     with pytest.raises(ValueError, match="rigid_frames"):
         make_matcher("deform", rigid_frames=("upright",)).match(src, tgt)
+    with pytest.raises(ValueError, match="swap_threshold"):
+        make_matcher("deform", swap_threshold=-0.1).match(src, tgt)
+    with pytest.raises(ValueError, match="swap_min_vertices"):
+        make_matcher("deform", swap_min_vertices=0).match(src, tgt)
 
 
 def test_deform_matcher_hypotheses_from_other_matchers(pair):

@@ -38,6 +38,7 @@ __all__ = [
     "RegistrationResult",
     "RegistrationSchedule",
     "closest_pairs",
+    "fit_residual",
     "nearest_compatible",
     "register",
 ]
@@ -396,6 +397,50 @@ class RegistrationResult:
     distortion: float
 
 
+def fit_residual(
+    deformed: FloatArray,
+    source_faces: IndexArray,
+    target_vertices: FloatArray,
+    target_normals: FloatArray,
+    target_tree: cKDTree,
+    *,
+    scale: float,
+    samples: tuple[IndexArray | None, IndexArray | None] = (None, None),
+    min_cos: float = 0.3,
+    cap: float = 0.05,
+) -> float:
+    """How well a deformed source covers the target: mean capped two-sided distance.
+
+    Each (sampled) deformed source vertex is paired with its nearest compatible target
+    vertex and each (sampled) target vertex with its nearest compatible deformed source
+    vertex (see :func:`nearest_compatible`); distances are divided by ``scale`` and
+    capped at ``cap``, and the two means are averaged. Lower is a better fit.
+
+    Parameters
+    ----------
+    deformed : ndarray, shape (n1, 3)
+    source_faces : ndarray, shape (f1, 3)
+    target_vertices : ndarray, shape (n2, 3)
+    target_normals : ndarray, shape (n2, 3)
+    target_tree : cKDTree
+        Built on ``target_vertices``.
+    scale : float
+        Length unit (the square root of the source's area).
+    samples : pair of ndarray or None
+        Source and target vertices to use (``None``: all).
+
+    Returns
+    -------
+    float
+    """
+    Nd = vertex_normals(deformed, source_faces)
+    qs = np.arange(len(deformed)) if samples[0] is None else samples[0]
+    qt = np.arange(len(target_vertices)) if samples[1] is None else samples[1]
+    _, d1 = nearest_compatible(deformed[qs], Nd[qs], target_tree, target_normals, min_cos=min_cos)
+    _, d2 = nearest_compatible(target_vertices[qt], target_normals[qt], cKDTree(deformed), Nd, min_cos=min_cos)
+    return 0.5 * (float(np.mean(np.minimum(d1 / scale, cap))) + float(np.mean(np.minimum(d2 / scale, cap))))
+
+
 def _geometric(a: tuple[float, float], t: float) -> float:
     return float(a[0] * (a[1] / a[0]) ** t) if a[0] > 0 else 0.0
 
@@ -409,7 +454,7 @@ def register(
     schedule: RegistrationSchedule = RegistrationSchedule(),
     *,
     graph: DeformationGraph | None = None,
-    start: GraphDeformation | None = None,
+    start: GraphDeformation | FloatArray | None = None,
     samples: tuple[IndexArray, IndexArray] | None = None,
     cap: float = 0.05,
 ) -> RegistrationResult:
@@ -427,9 +472,9 @@ def register(
     schedule : RegistrationSchedule
     graph : DeformationGraph, optional
         Built with ``schedule.n_nodes`` nodes when omitted.
-    start : GraphDeformation, optional
-        Initial state on another graph of the same source; its deformed vertices seed
-        this registration.
+    start : GraphDeformation or ndarray of shape (n1, 3), optional
+        Initial state on another graph of the same source, or deformed source vertex
+        positions; the deformed vertices seed this registration.
     samples : pair of ndarray, optional
         Source and target vertex samples for the closest-point phase; computed by
         farthest-point sampling when ``schedule.n_samples`` is set and they are omitted.
@@ -453,7 +498,9 @@ def register(
         graph = build_deformation_graph(V, F, schedule.n_nodes)
     D = GraphDeformation(V, F, graph)
     if start is not None:
-        cur = start.deformed()
+        cur = start.deformed() if isinstance(start, GraphDeformation) else np.asarray(start, dtype=np.float64)
+        if cur.shape != V.shape:
+            raise ValueError(f"start positions have shape {cur.shape}, the source has {V.shape}")
         D.init_from_pairs(DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V))))
         D.update_rotations(DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V))))
     if init_pairs is not None and schedule.fit_iterations > 0:
@@ -488,11 +535,6 @@ def register(
         D.update_rotations(pairs)
         D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)
     Vd = D.deformed()
-    Nd = vertex_normals(Vd, F)
-    qs = np.arange(len(V)) if src_s is None else src_s
-    qt = np.arange(len(W)) if tgt_s is None else tgt_s
-    _, d1 = nearest_compatible(Vd[qs], Nd[qs], tree, Nt, min_cos=schedule.min_cos)
-    _, d2 = nearest_compatible(W[qt], Nt[qt], cKDTree(Vd), Nd, min_cos=schedule.min_cos)
-    residual = 0.5 * (float(np.mean(np.minimum(d1 / scale, cap))) + float(np.mean(np.minimum(d2 / scale, cap))))
+    residual = fit_residual(Vd, F, W, Nt, tree, scale=scale, samples=(src_s, tgt_s), min_cos=schedule.min_cos, cap=cap)
     distortion = float(np.mean(D.link_stretch())) / graph.spacing
     return RegistrationResult(Vd, D, residual, distortion)
