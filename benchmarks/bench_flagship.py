@@ -16,6 +16,7 @@ Examples
     python benchmarks/bench_flagship.py --data DATA --protocol topkids25 --split train
     python benchmarks/bench_flagship.py --data DATA --protocol shrec16 --split train --max-pairs 10
     python benchmarks/bench_flagship.py --data DATA --resolution high --protocol shrec16 --split train --max-pairs 4
+    python benchmarks/bench_flagship.py --data DATA --methods deform,zoomout --param deform.fine_icp_iterations=25
 
 Timings depend on the machine and its load: quote medians, rerun on a quiet machine.
 """
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from topomatch._memory import PeakMemory, current_rss_mb
+from topomatch.cli.main import _parse_params
 from topomatch.datasets.topkids import load_topkids
 from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps, summarize
@@ -53,8 +55,8 @@ def pyfm_zoomout(source: TriangleMesh, target: TriangleMesh) -> np.ndarray:
     return np.asarray(fm.get_p2p(FM=C), dtype=np.int64)
 
 
-def ours(name: str):
-    matcher = make_matcher(name)
+def ours(name: str, params: dict | None = None):
+    matcher = make_matcher(name, **(params or {}))
 
     def run(source: TriangleMesh, target: TriangleMesh) -> np.ndarray:
         return matcher.match(source, target).p2p_21
@@ -72,6 +74,7 @@ def main() -> None:
     ap.add_argument("--max-pairs", type=int, default=None, help="first N pairs of the split (evenly spread for shrec16)")
     ap.add_argument("--geodesic", default=None, help="geodesic kind for scoring (default: the protocol's)")
     ap.add_argument("--json", default=None, help="write the per-pair figures to this file")
+    ap.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="parameter of one of our methods (repeatable)")
     args = ap.parse_args()
     if not args.data:
         ap.error("give --data or set TOPOMATCH_DATA")
@@ -83,7 +86,8 @@ def main() -> None:
         idx = np.unique(np.linspace(0, len(pairs) - 1, args.max_pairs).round().astype(int))
         pairs = [pairs[i] for i in idx]
     methods = [m for m in args.methods.split(",") if m]
-    runners = {m: (pyfm_zoomout if m == "pyfm-zoomout" else ours(m)) for m in methods}
+    params = _parse_params(args.param, [m for m in methods if m != "pyfm-zoomout"])
+    runners = {m: (pyfm_zoomout if m == "pyfm-zoomout" else ours(m, params.get(m))) for m in methods}
     print(f"{len(pairs)} pairs ({args.protocol}, {args.split}, {args.resolution} res); methods: {', '.join(methods)}")
 
     maps: dict[tuple[str, str], np.ndarray] = {}

@@ -137,6 +137,8 @@ class GraphDeformation:
         self._Ia = sparse.csr_matrix((np.ones(nd), (self._dir_a, np.arange(nd))), shape=(m, nd))
         self._Ib = sparse.csr_matrix((np.ones(nd), (self._dir_b, np.arange(nd))), shape=(m, nd))
         self._D = (self._Ib - self._Ia).tocsr()
+        self._lg: sparse.csr_matrix | None = None
+        self._lg_scale: FloatArray | None = None
 
     # ---- evaluation ------------------------------------------------------------------------
     def _affine_part(self, subset: IndexArray | None = None, skin_rows: sparse.csr_matrix | None = None) -> FloatArray:
@@ -202,44 +204,64 @@ class GraphDeformation:
         R[tiny] = self.rotations[tiny]
         self.rotations = R
 
+    def _regulariser(self, wl: FloatArray) -> sparse.csr_matrix:
+        """``D diag(wl) D^T`` (the graph Laplacian of the link term), kept while the link weights stay."""
+        if self._lg is None or self._lg_scale is not self.link_scale:
+            self._lg = (self._D @ sparse.diags(wl) @ self._D.T).tocsr()
+            self._lg_scale = self.link_scale
+        return self._lg
+
     def update_positions(self, pairs: DataPairs, *, alpha: float, mu_point: float = 1.0, mu_plane: float = 0.0) -> None:
-        """Linear step: node positions minimising the energy for fixed rotations."""
+        """Linear step: node positions minimising the energy for fixed rotations.
+
+        The unknowns are ordered by coordinate (all x, then all y, then all z): the
+        point-to-point and link terms are then three copies of one ``m x m`` matrix, and
+        without the point-to-plane term the three coordinates are solved with one
+        factorisation of that matrix.
+        """
         m = self.graph.n_nodes
         if len(pairs.source) == 0 or not float(pairs.weights.sum()) > 0:
             return  # no data (e.g. every closest pair had incompatible normals): keep the state
         wl = self._link_weights()
         # regulariser: sum over directed links of w ||g_b - g_a - d_ab||^2
         d = np.einsum("kab,kb->ka", self.rotations[self._dir_a], self._dir_rest)
-        Lg = (self._D @ sparse.diags(wl) @ self._D.T).tocsr()
-        rhs = self._D @ (wl[:, None] * d)
+        Lg = self._regulariser(wl)
+        rhs = self._D @ (wl[:, None] * d)  # (m, 3)
         # data
         P = self._skin[pairs.source]  # (p, m)
+        PT = P.T.tocsr()
         resid = pairs.points - self._affine_part(pairs.source, P)  # y - a_i, (p, 3)
         c = pairs.weights
         data_scale = float(c.sum()) / max(float(wl.sum()), 1e-300)
         reg = alpha * data_scale
-        A = reg * Lg
-        r = reg * rhs
-        if mu_point > 0:
-            A = A + (P.T @ sparse.diags(mu_point * c) @ P)
-            r = r + P.T @ (mu_point * c[:, None] * resid)
-        H = sparse.kron(A, sparse.identity(3), format="csr")
-        r = np.asarray(r).ravel()
+        counts = np.diff(P.indptr)
+
+        def gram(w: FloatArray) -> sparse.csr_matrix:  # P^T diag(w) P
+            return PT @ sparse.csr_matrix((P.data * np.repeat(w, counts), P.indices, P.indptr), shape=P.shape)
+
+        r = reg * rhs + PT @ (mu_point * c[:, None] * resid)
         if mu_plane > 0:
-            Pc = P.tocoo()
             nrm = pairs.normals
-            rows = np.repeat(Pc.row, 3)
-            cols = (3 * Pc.col[:, None] + np.arange(3)[None, :]).ravel()
-            vals = (Pc.data[:, None] * nrm[Pc.row]).ravel()
-            J = sparse.csr_matrix((vals, (rows, cols)), shape=(len(c), 3 * m))
             proj = np.einsum("pc,pc->p", nrm, resid)
-            H = H + (J.T @ sparse.diags(mu_plane * c) @ J)
-            r = r + J.T @ (mu_plane * c * proj)
-        eps = 1e-8 * float(H.diagonal().mean())
-        H = H + eps * sparse.identity(3 * m)
-        r = r + eps * self.positions.ravel()
-        chol = SparseCholesky(H)
-        self.positions = chol.solve(r).reshape(m, 3)
+            r = r + PT @ ((mu_plane * c * proj)[:, None] * nrm)
+            blocks: list[list[sparse.csr_matrix | None]] = [[None] * 3 for _ in range(3)]
+            for i in range(3):
+                for j in range(i, 3):
+                    w = mu_plane * c * nrm[:, i] * nrm[:, j]
+                    if i == j:
+                        blocks[i][i] = gram(w + mu_point * c) + reg * Lg
+                    else:
+                        blocks[i][j] = blocks[j][i] = gram(w)
+            H = sparse.bmat(blocks, format="csr")
+            eps = 1e-8 * float(H.diagonal().mean())
+            H = H + eps * sparse.identity(3 * m)
+            x = SparseCholesky(H).solve(np.ravel((r + eps * self.positions).T))
+            self.positions = x.reshape(3, m).T.copy()
+        else:
+            A = gram(mu_point * c) + reg * Lg
+            eps = 1e-8 * float(A.diagonal().mean())
+            A = A + eps * sparse.identity(m)
+            self.positions = SparseCholesky(A).solve(np.asarray(r + eps * self.positions))
 
     def update_link_scale(self, threshold: float) -> None:
         """Down-weight links stretched more than ``threshold`` times the median stretch."""
