@@ -161,6 +161,8 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", swap_threshold=-0.1).match(src, tgt)
     with pytest.raises(ValueError, match="swap_min_vertices"):
         make_matcher("deform", swap_min_vertices=0).match(src, tgt)
+    with pytest.raises(ValueError, match="continue_icp_iterations"):
+        make_matcher("deform", continue_icp_iterations=-1).match(src, tgt)
 
 
 def test_deform_matcher_hypotheses_from_other_matchers(pair):

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import (
     DataPairs,
+    GraphDeformation,
     RegistrationResult,
     RegistrationSchedule,
     nearest_compatible,
@@ -413,6 +414,13 @@ class DeformMatcher(Matcher):
         disables it. On the training pairs: 8.38 -> TODO.
     swap_min_vertices : int
         Smallest region :func:`swap_regions` considers.
+    continue_icp_iterations : int
+        Closest-point iterations that continue the chosen (and assembled) coarse
+        registration on the coarse graph, with stiffness going from ``continue_alpha[0]``
+        to ``continue_alpha[1]``, before the fine registration; ``0`` skips them. The
+        coarse graph can still move whole limbs, which the fine one cannot. On the
+        training pairs: TODO.
+    continue_alpha : tuple of float
     rigid_frames : tuple of str
         Rigid hypotheses verified after the spectral ones (see
         :func:`rigid_hypotheses`): ``"as-given"`` and/or ``"principal-axes"``; ``()``
@@ -453,6 +461,8 @@ class DeformMatcher(Matcher):
         n_refine: int = 1,
         swap_threshold: float = 0.05,
         swap_min_vertices: int = 50,
+        continue_icp_iterations: int = 25,
+        continue_alpha: tuple[float, float] = (0.3, 0.1),
         rigid_frames: tuple[str, ...] = RIGID_FRAMES,
         matcher_hypotheses: tuple[str, ...] = (),
         n_threads: int | None = None,
@@ -471,6 +481,8 @@ class DeformMatcher(Matcher):
         self.n_refine = n_refine
         self.swap_threshold = swap_threshold
         self.swap_min_vertices = swap_min_vertices
+        self.continue_icp_iterations = continue_icp_iterations
+        self.continue_alpha = continue_alpha
         self.rigid_frames = rigid_frames
         self.matcher_hypotheses = matcher_hypotheses
         self.n_threads = n_threads
@@ -487,6 +499,8 @@ class DeformMatcher(Matcher):
             raise ValueError(f"n_threads must be a positive integer or None, got {self.n_threads!r}")
         if not isinstance(self.swap_threshold, (int, float, np.integer, np.floating)) or not self.swap_threshold >= 0:
             raise ValueError(f"swap_threshold must be a number >= 0, got {self.swap_threshold!r}")
+        if not isinstance(self.continue_icp_iterations, (int, np.integer)) or self.continue_icp_iterations < 0:
+            raise ValueError(f"continue_icp_iterations must be an integer >= 0, got {self.continue_icp_iterations!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_refine", "k_zoomout", "swap_min_vertices"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
@@ -586,15 +600,24 @@ class DeformMatcher(Matcher):
             sigma_icp=(0.03, 0.01),
         )
         fine_graph = build_deformation_graph(source.vertices, source.faces, self.fine_nodes)
-        starts = {int(i): results[i].deformation for i in order[: self.n_refine]}
+        starts: dict[int, GraphDeformation | FloatArray] = {int(i): results[i].deformation for i in order[: self.n_refine]}
         swaps: list[tuple[str, int]] = []
+        samples = self._samples(source, target)
         if self.swap_threshold > 0 and len(results) > 1:
             assembled, _, sw = swap_regions(
                 source, target, [results[i].deformed for i in order],
-                threshold=self.swap_threshold, min_vertices=self.swap_min_vertices, samples=self._samples(source, target),
+                threshold=self.swap_threshold, min_vertices=self.swap_min_vertices, samples=samples,
             )
             starts[int(order[0])] = assembled
             swaps = [(hyps[order[h]].label, nv) for h, nv in sw]
+        if self.continue_icp_iterations > 0:
+            cont = RegistrationSchedule(
+                n_nodes=self.coarse_nodes, fit_iterations=0, icp_iterations=self.continue_icp_iterations,
+                alpha_icp=tuple(self.continue_alpha),
+            )
+            graph = build_deformation_graph(source.vertices, source.faces, self.coarse_nodes)
+            for i, st in starts.items():
+                starts[i] = register(source.vertices, source.faces, W, target.faces, None, cont, graph=graph, start=st, samples=samples).deformed
         best = None
         for i in order[: self.n_refine]:
             r = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[int(i)])
