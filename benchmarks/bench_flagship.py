@@ -16,6 +16,7 @@ Examples
     python benchmarks/bench_flagship.py --data DATA --protocol topkids25 --split train
     python benchmarks/bench_flagship.py --data DATA --protocol shrec16 --split train --max-pairs 10
     python benchmarks/bench_flagship.py --data DATA --resolution high --protocol shrec16 --split train --max-pairs 4
+    python benchmarks/bench_flagship.py --data DATA --resolution high --max-pairs 2 --geodesic none
     python benchmarks/bench_flagship.py --data DATA --methods deform,zoomout --param deform.fine_icp_iterations=25
 
 Timings depend on the machine and its load: quote medians, rerun on a quiet machine.
@@ -72,7 +73,7 @@ def main() -> None:
     ap.add_argument("--resolution", default="low", choices=["low", "high"])
     ap.add_argument("--methods", default=f"{DEFAULT_METHOD},zoomout,pyfm-zoomout")
     ap.add_argument("--max-pairs", type=int, default=None, help="first N pairs of the split (evenly spread for shrec16)")
-    ap.add_argument("--geodesic", default=None, help="geodesic kind for scoring (default: the protocol's)")
+    ap.add_argument("--geodesic", default=None, help="geodesic kind for scoring (default: the protocol's); 'none': timings only")
     ap.add_argument("--json", default=None, help="write the per-pair figures to this file")
     ap.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="parameter of one of our methods (repeatable)")
     args = ap.parse_args()
@@ -116,7 +117,9 @@ def main() -> None:
     geos = [args.geodesic] if args.geodesic else list(prot.geodesics)
     acc: dict[str, dict[str, dict]] = {m: {} for m in methods}
     variants = [(geo, prot) for geo in geos]
-    if prot.name == "shrec16":
+    if args.geodesic == "none":  # e.g. at high res, where scoring costs more than matching
+        variants = []
+    elif prot.name == "shrec16":
         variants = [(geos[0], prot), (geos[0] + " no-sym", prot.with_options(symmetric=False))]
     for label, p in variants:
         geo = label.split()[0]

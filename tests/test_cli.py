@@ -31,11 +31,12 @@ def test_bench_rejects_bad_data_dir(tmp_path, capsys):
 def test_match_writes_a_map(tmp_path, small_sphere):
     write_mesh(tmp_path / "a.off", small_sphere.vertices, small_sphere.faces)
     write_mesh(tmp_path / "b.ply", small_sphere.vertices, small_sphere.faces)
-    rc = main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.ply"), "--out", str(tmp_path / "m.txt"), "--param", "k=30", "--param", "n_descriptors=20"])
+    rc = main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.ply"), "--out", str(tmp_path / "m.txt"),
+               "--method", "descriptor-nn", "--param", "k=30", "--param", "n_descriptors=20"])
     assert rc == 0
     p = read_p2p(tmp_path / "m.txt", small_sphere.n_vertices, small_sphere.n_vertices)
     assert p.min() >= 0
-    assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.ply"), "--out", str(tmp_path / "m.npy")]) == 0
+    assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.ply"), "--out", str(tmp_path / "m.npy"), "--method", "descriptor-nn"]) == 0
     assert np.load(tmp_path / "m.npy").shape == (small_sphere.n_vertices,)
     assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "missing.off"), "--out", str(tmp_path / "x.txt")]) == 2
 
@@ -83,3 +84,16 @@ def test_evaluate_rescores_a_run_directory_maps(tmp_path, topkids_low, capsys):
     np.savez(sub / f"{pr.id}.npz", other=np.zeros(3))
     rc = main(["evaluate", str(sub), "--protocol", "topkids25", "--split", "test", "--data", str(DATA), "--out", str(tmp_path / "ev2"), "--geodesic", "heat", "--quiet"])
     assert rc == 2 and "p2p_21" in capsys.readouterr().err
+
+
+def test_match_defaults_to_the_flagship(tmp_path, capsys):
+    # a shape without symmetry matched to a shuffled copy of itself: the flagship finds the identity
+    from ._fmap_shapes import bumpy, shuffled
+
+    src = bumpy(3, mirror_symmetric=False)
+    tgt, perm = shuffled(src, seed=1)
+    write_mesh(tmp_path / "a.off", src.vertices, src.faces)
+    write_mesh(tmp_path / "b.off", tgt.vertices, tgt.faces)
+    assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.off"), "--out", str(tmp_path / "m.npy")]) == 0
+    assert "deform:" in capsys.readouterr().err
+    assert np.mean(np.load(tmp_path / "m.npy") == perm) > 0.95

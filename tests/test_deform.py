@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from topomatch.datasets.toy import icosphere
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
 from topomatch.matching import MATCHERS, make_matcher
@@ -161,6 +162,8 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", swap_threshold=-0.1).match(src, tgt)
     with pytest.raises(ValueError, match="swap_min_vertices"):
         make_matcher("deform", swap_min_vertices=0).match(src, tgt)
+    with pytest.raises(ValueError, match="has 42 vertices"):
+        make_matcher("deform").match(icosphere(1), icosphere(1))
     with pytest.raises(ValueError, match="continue_icp_iterations"):
         make_matcher("deform", continue_icp_iterations=-1).match(src, tgt)
 

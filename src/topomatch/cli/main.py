@@ -42,7 +42,7 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
 
 def _build_parser() -> argparse.ArgumentParser:
     from topomatch import __version__
-    from topomatch.matching import DEFAULT_METHOD, MATCHERS
+    from topomatch.matching import DEFAULT_MATCH_METHOD, DEFAULT_METHOD, MATCHERS
 
     parser = argparse.ArgumentParser(prog="topomatch", description="Dense shape correspondence under topological noise.")
     parser.add_argument("--version", action="version", version=f"topomatch {__version__}")
@@ -87,7 +87,7 @@ def _build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("match", help="match one pair of meshes")
     m.add_argument("source", help="shape 1 (the map's values index its vertices)")
     m.add_argument("target", help="shape 2 (one map entry per vertex)")
-    m.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(MATCHERS))
+    m.add_argument("--method", default=DEFAULT_MATCH_METHOD, choices=sorted(MATCHERS), help=f"default: {DEFAULT_MATCH_METHOD}")
     m.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--out", required=True, metavar="MAP", help="output file (.txt one-based vertex map, .npy zero-based, or --format shrec16)")
