@@ -523,8 +523,9 @@ def register(
         cur = start.deformed() if isinstance(start, GraphDeformation) else np.asarray(start, dtype=np.float64)
         if cur.shape != V.shape:
             raise ValueError(f"start positions have shape {cur.shape}, the source has {V.shape}")
-        D.init_from_pairs(DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V))))
-        D.update_rotations(DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V))))
+        every = DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V)))
+        D.init_from_pairs(every)
+        D.update_rotations(every)
     if init_pairs is not None and schedule.fit_iterations > 0:
         prior = init_pairs.weights
         if start is None:

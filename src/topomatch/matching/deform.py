@@ -37,14 +37,17 @@ from dataclasses import dataclass
 from itertools import chain
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
-from topomatch.deform.graph import build_deformation_graph
+from topomatch.deform.graph import DeformationGraph, build_deformation_graph
 from topomatch.deform.register import (
     DataPairs,
     GraphDeformation,
     RegistrationResult,
     RegistrationSchedule,
+    fit_residual,
     nearest_compatible,
     register,
 )
@@ -304,17 +307,12 @@ def swap_regions(
     swaps : list of (int, int)
         For each accepted swap, the index into ``deformed`` and the number of vertices.
     """
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
-
-    from topomatch.deform.register import fit_residual
-
     F = source.faces
     W, Nt = target.vertices, target.vertex_normals
     tree = cKDTree(W)
     scale = float(np.sqrt(source.area))
     smp = samples if samples is not None else (None, None)
-    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    E = source.edges
     n = source.n_vertices
 
     def residual(X: FloatArray) -> float:
@@ -331,7 +329,7 @@ def swap_regions(
                 continue
             e = E[diff[E[:, 0]] & diff[E[:, 1]]]
             adj = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-            _, comp = connected_components(adj, directed=False)
+            _, comp = csgraph.connected_components(adj, directed=False)
             comp = np.where(diff, comp, -1)
             ids, counts = np.unique(comp[comp >= 0], return_counts=True)
             for c in ids[counts >= min_vertices]:
@@ -537,10 +535,18 @@ class DeformMatcher(Matcher):
             if len(tv) >= 4:
                 yield Hypothesis(name, p[tv], tv)
 
-    def _samples(self, source: TriangleMesh, target: TriangleMesh) -> tuple[IndexArray, IndexArray]:
+    def _setup(self, source: TriangleMesh, target: TriangleMesh) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph]:
+        """Check the pair; farthest-point samples of both shapes and the coarse graph (shared by every step)."""
+        for mesh in (source, target):
+            if mesh.n_vertices <= self.k_zoomout:
+                raise ValueError(
+                    f"deform: mesh {mesh.name or '(unnamed)'} has {mesh.n_vertices} vertices; the spectral hypotheses need more "
+                    f"than k_zoomout = {self.k_zoomout} (set k_zoomout and the hypotheses' k lower for such small meshes)"
+                )
         s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0)
         s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0)
-        return s1, s2
+        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices))
+        return (s1, s2), graph
 
     def verify_hypotheses(self, source: TriangleMesh, target: TriangleMesh) -> tuple[list[Hypothesis], list[RegistrationResult]]:
         """Steps 1-2: every hypothesis with its coarse registration (in the order tried).
@@ -555,22 +561,27 @@ class DeformMatcher(Matcher):
             selection criterion.
         """
         settings = self._check()
-        for mesh in (source, target):
-            if mesh.n_vertices <= self.k_zoomout:
-                raise ValueError(
-                    f"deform: mesh {mesh.name or '(unnamed)'} has {mesh.n_vertices} vertices; the spectral hypotheses need more "
-                    f"than k_zoomout = {self.k_zoomout} (set k_zoomout and the hypotheses' k lower for such small meshes)"
-                )
-        s1, s2 = self._samples(source, target)
+        samples, graph = self._setup(source, target)
+        return self._verify(source, target, settings, samples, graph)
+
+    def _verify(
+        self,
+        source: TriangleMesh,
+        target: TriangleMesh,
+        settings: list[tuple[str, int, bool]],
+        samples: tuple[IndexArray, IndexArray],
+        graph: DeformationGraph,
+    ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
+        """:meth:`verify_hypotheses` on samples and a coarse graph from :meth:`_setup`."""
+        s1, s2 = samples
         W = target.vertices
         Nt = target.vertex_normals
         coarse = RegistrationSchedule(
-            n_nodes=min(self.coarse_nodes, source.n_vertices),
+            n_nodes=graph.n_nodes,
             fit_iterations=self.coarse_fit_iterations,
             icp_iterations=self.coarse_icp_iterations,
             alpha_icp=tuple(self.coarse_alpha),
         )
-        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices))
         candidates = chain(
             spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout),
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
@@ -603,18 +614,19 @@ class DeformMatcher(Matcher):
 
     def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
         t0 = time.perf_counter()
-        hyps, results = self.verify_hypotheses(source, target)
+        settings = self._check()
+        samples, graph = self._setup(source, target)
+        hyps, results = self._verify(source, target, settings, samples, graph)
         W = target.vertices
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
+        fine_graph = build_deformation_graph(source.vertices, source.faces, min(self.fine_nodes, source.n_vertices))
         fine = RegistrationSchedule(
-            n_nodes=min(self.fine_nodes, source.n_vertices), fit_iterations=0, icp_iterations=self.fine_icp_iterations, alpha_icp=tuple(self.fine_alpha),
+            n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.fine_icp_iterations, alpha_icp=tuple(self.fine_alpha),
             sigma_icp=(0.03, 0.01),
         )
-        fine_graph = build_deformation_graph(source.vertices, source.faces, min(self.fine_nodes, source.n_vertices))
         starts: dict[int, GraphDeformation | FloatArray] = {int(i): results[i].deformation for i in order[: self.n_refine]}
         swaps: list[tuple[str, int]] = []
-        samples = self._samples(source, target)
         if self.swap_threshold > 0 and len(results) > 1:
             assembled, _, sw = swap_regions(
                 source, target, [results[i].deformed for i in order],
@@ -624,10 +636,9 @@ class DeformMatcher(Matcher):
             swaps = [(hyps[order[h]].label, nv) for h, nv in sw]
         if self.continue_icp_iterations > 0:
             cont = RegistrationSchedule(
-                n_nodes=min(self.coarse_nodes, source.n_vertices), fit_iterations=0, icp_iterations=self.continue_icp_iterations,
+                n_nodes=graph.n_nodes, fit_iterations=0, icp_iterations=self.continue_icp_iterations,
                 alpha_icp=tuple(self.continue_alpha),
             )
-            graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices))
             for i, st in starts.items():
                 starts[i] = register(source.vertices, source.faces, W, target.faces, None, cont, graph=graph, start=st, samples=samples).deformed
         best = None
