@@ -166,6 +166,43 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform").match(icosphere(1), icosphere(1))
     with pytest.raises(ValueError, match="continue_icp_iterations"):
         make_matcher("deform", continue_icp_iterations=-1).match(src, tgt)
+    with pytest.raises(ValueError, match="distortion_weight"):
+        make_matcher("deform", distortion_weight=-0.01).match(src, tgt)
+    with pytest.raises(ValueError, match="n_continue"):
+        make_matcher("deform", n_continue=0).match(src, tgt)
+
+
+def test_deform_chooses_by_fit_and_distortion_after_continuing(pair):
+    src, tgt, _ = pair
+    kw = {"hypotheses": (("hks", 30, False), ("hks", 10, False)), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200}
+    for w in (0.0, 0.025, 10.0):
+        c = make_matcher("deform", distortion_weight=w, n_continue=3, **kw).match(src, tgt)
+        cont = c.info["continued"]
+        assert len(cont) == 3 and c.info["hypothesis"] in cont
+        labels = list(cont)
+        best = labels[int(np.argmin([r + w * d for r, d in cont.values()]))]
+        assert c.info["hypothesis"] == best
+
+
+def test_deform_does_not_turn_the_figure_around(builtin):
+    """syn05 from syn00: the best-fitting registration is the figure turned front to back.
+
+    Its fit is the best (also after the continuation) because the figure is nearly
+    symmetric front to back; the distortion it needs to fit is what rejects it.
+    """
+    from topomatch.datasets.base import ground_truth_21
+
+    target, source = builtin["syn05"], builtin["syn00"]
+    c = make_matcher("deform").match(source.mesh, target.mesh)
+    cont = c.info["continued"]
+    best_fit = min(cont, key=lambda k: cont[k][0])
+    assert c.info["hypothesis"] != best_fit  # the distortion term decided
+    gt = ground_truth_21(target, source).tocsr()
+    rows = np.flatnonzero(np.diff(gt.indptr) > 0)
+    true_src = gt.indices[gt.indptr[rows]]
+    V = source.mesh.vertices
+    err = np.linalg.norm(V[c.p2p_21[rows]] - V[true_src], axis=1) / np.sqrt(source.mesh.area)
+    assert np.median(err) < 0.05
 
 
 def test_deform_matcher_hypotheses_from_other_matchers(pair):

@@ -42,7 +42,7 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
 
 def _build_parser() -> argparse.ArgumentParser:
     from topomatch import __version__
-    from topomatch.matching import DEFAULT_MATCH_METHOD, DEFAULT_METHOD, MATCHERS
+    from topomatch.matching import DEFAULT_METHOD, MATCHERS
 
     parser = argparse.ArgumentParser(prog="topomatch", description="Dense shape correspondence under topological noise.")
     parser.add_argument("--version", action="version", version=f"topomatch {__version__}")
@@ -57,7 +57,7 @@ def _build_parser() -> argparse.ArgumentParser:
     b.add_argument("--method", action="append", choices=sorted(MATCHERS), help=f"repeatable (default: {DEFAULT_METHOD})")
     b.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="hyperparameter (repeatable)")
     b.add_argument("--out", metavar="RUN", help="run directory (default: runs/<dataset>-<time>)")
-    b.add_argument("--jobs", type=int, default=1, help="worker processes")
+    b.add_argument("--jobs", type=int, help="worker processes (default: the CPU count, at most 4; use 1 for timings)")
     b.add_argument("--max-pairs", type=int, metavar="N", help="at most N pairs per protocol (evenly spaced subset)")
     b.add_argument("--pair", action="append", metavar="TARGET-SOURCE", help="run only this pair, e.g. kid02-kid01 (repeatable)")
     b.add_argument("--dask", metavar="SCHEDULER", help="run on an existing Dask cluster (tcp://host:8786; needs topomatch[dask])")
@@ -87,7 +87,7 @@ def _build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("match", help="match one pair of meshes")
     m.add_argument("source", help="shape 1 (the map's values index its vertices)")
     m.add_argument("target", help="shape 2 (one map entry per vertex)")
-    m.add_argument("--method", default=DEFAULT_MATCH_METHOD, choices=sorted(MATCHERS), help=f"default: {DEFAULT_MATCH_METHOD}")
+    m.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(MATCHERS), help=f"default: {DEFAULT_METHOD}")
     m.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--out", required=True, metavar="MAP", help="output file (.txt one-based vertex map, .npy zero-based, or --format shrec16)")
@@ -187,7 +187,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         params=_parse_params(args.param, methods),
         symmetric=args.symmetric,
         geodesics=args.geodesic,
-        jobs=args.jobs,
+        jobs=args.jobs if args.jobs is not None else min(4, os.cpu_count() or 1),
         random_state=args.seed,
         max_pairs=args.max_pairs,
         pairs=args.pair,

@@ -285,6 +285,10 @@ class GraphDeformation:
         del m
 
 
+_PARALLEL_QUERY = 20000
+"""Queries with more points than this use all cores."""
+
+
 def nearest_compatible(
     points: FloatArray,
     normals: FloatArray,
@@ -304,12 +308,15 @@ def nearest_compatible(
     index : ndarray, shape (q,)
     distance : ndarray, shape (q,)
     """
-    d, idx = tree.query(points, k=1, workers=-1)
+    # scipy starts threads on every query with workers=-1: slower than one thread for
+    # the few thousand points of a sample (the registrations run on threads anyway)
+    workers = -1 if len(points) > _PARALLEL_QUERY else 1
+    d, idx = tree.query(points, k=1, workers=workers)
     if k == 1:
         return idx, d
     bad = np.flatnonzero(np.einsum("qc,qc->q", normals, ref_normals[idx]) < min_cos)
     if bad.size:
-        dk, ik = tree.query(points[bad], k=k, workers=-1)
+        dk, ik = tree.query(points[bad], k=k, workers=-1 if len(bad) > _PARALLEL_QUERY else 1)
         cos = np.einsum("qc,qkc->qk", normals[bad], ref_normals[ik])
         ok = cos >= min_cos
         first = np.where(ok.any(axis=1), np.argmax(ok, axis=1), 0)

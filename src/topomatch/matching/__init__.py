@@ -18,7 +18,7 @@ from topomatch.matching.random_map import RandomMatcher
 from topomatch.matching.rf import RandomForestMatcher
 from topomatch.matching.zoomout import ZoomOutMatcher
 
-__all__ = ["DEFAULT_MATCH_METHOD", "DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
+__all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
 
 MATCHERS: dict[str, type[Matcher]] = {
     "oracle": OracleMatcher,
@@ -34,12 +34,9 @@ MATCHERS: dict[str, type[Matcher]] = {
     "deform": DeformMatcher,
 }
 
-DEFAULT_METHOD = "descriptor-nn"
-"""Default of ``topomatch bench``: fast enough for the one-minute run on the built-in benchmark."""
-
-DEFAULT_MATCH_METHOD = "deform"
-"""Default of ``topomatch match``: the flagship (about 9 s for a pair of 10K-vertex shapes on
-two cores; see ``docs/flagship.md``)."""
+DEFAULT_METHOD = "deform"
+"""Default of ``topomatch match`` and ``topomatch bench``: the flagship (about 9 s for a pair
+of 10K-vertex shapes on two cores; see ``docs/flagship.md``)."""
 
 
 def make_matcher(name: str, **params: Any) -> Matcher:
