@@ -20,10 +20,13 @@
 3. **Assembly.** Under heavy noise no single registration is right everywhere, so
    regions where another verified registration differs from the winner are swapped in
    when that lowers the fit residual (:func:`swap_regions`).
-4. **Refinement.** The (assembled) winner continues its closest-point iterations on the
-   coarse graph, which can still move whole limbs, then is registered again on a finer
-   graph with point-to-plane closest points on all vertices, and every target vertex
-   takes the nearest deformed source vertex with a compatible normal.
+4. **Choice.** The (assembled) winner and the next best-verified registrations continue
+   their closest-point iterations on the coarse graph, which can still move whole limbs;
+   the one with the lowest fit residual plus a weighted graph distortion goes on (a body
+   turned front to back fits almost as well, but only by bending out of shape).
+5. **Refinement.** It is registered again on a finer graph with point-to-plane closest
+   points on all vertices, and every target vertex takes the nearest deformed source
+   vertex with a compatible normal.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
 
 from topomatch.deform.graph import DeformationGraph, build_deformation_graph
 from topomatch.deform.register import (
@@ -624,21 +628,27 @@ class DeformMatcher(Matcher):
             return hyps, results
         hyps = list(candidates)
         n = self._n_threads()
-        if n > 1 and len(hyps) > 1:
-            with ThreadPoolExecutor(max_workers=n) as pool:
-                results = list(pool.map(verify, hyps))
-        else:
-            results = [verify(h) for h in hyps]
+        # the registrations' small dense solves lose to BLAS threads competing with ours
+        with threadpool_limits(limits=1, user_api="blas"):
+            if n > 1 and len(hyps) > 1:
+                with ThreadPoolExecutor(max_workers=n) as pool:
+                    results = list(pool.map(verify, hyps))
+            else:
+                results = [verify(h) for h in hyps]
         return hyps, results
 
-    def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
-        t0 = time.perf_counter()
-        settings = self._check()
-        samples, graph = self._setup(source, target)
-        hyps, results = self._verify(source, target, settings, samples, graph)
+    def _refine(
+        self,
+        source: TriangleMesh,
+        target: TriangleMesh,
+        hyps: list[Hypothesis],
+        results: list[RegistrationResult],
+        order: IndexArray,
+        samples: tuple[IndexArray, IndexArray],
+        graph: DeformationGraph,
+    ) -> tuple[int, RegistrationResult, list[tuple[str, int]], dict[str, tuple[float, float]]]:
+        """Steps 3-5: swaps, continuation and choice, fine registration."""
         W = target.vertices
-        order = np.argsort([r.residual for r in results], kind="stable")
-        t1 = time.perf_counter()
         fine_graph = build_deformation_graph(source.vertices, source.faces, min(self.fine_nodes, source.n_vertices))
         fine = RegistrationSchedule(
             n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.fine_icp_iterations, alpha_icp=tuple(self.fine_alpha),
@@ -677,6 +687,17 @@ class DeformMatcher(Matcher):
                 starts[i] = r.deformed
                 continued[hyps[i].label] = (float(r.residual), float(r.distortion))
         r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best])
+        return i_best, r_best, swaps, continued
+
+    def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
+        t0 = time.perf_counter()
+        settings = self._check()
+        samples, graph = self._setup(source, target)
+        hyps, results = self._verify(source, target, settings, samples, graph)
+        order = np.argsort([r.residual for r in results], kind="stable")
+        t1 = time.perf_counter()
+        with threadpool_limits(limits=1, user_api="blas"):
+            i_best, r_best, swaps, continued = self._refine(source, target, hyps, results, order, samples, graph)
         p2p = map_from_deformed(target, r_best.deformed, source.faces)
         t2 = time.perf_counter()
         info = {
