@@ -410,6 +410,8 @@ class DeformMatcher(Matcher):
     fine_nodes : int
         Graph size of the final registration.
     fine_icp_iterations : int
+        Closest-point iterations of the final registration (on the training pairs, 12
+        -> 25: 5.80 -> 5.63, mean geodesic error x100, Dijkstra, for about 0.9 s more).
     fine_alpha : tuple of float
         Stiffness at the start and end of the final closest-point iterations.
     swap_threshold : float
@@ -476,7 +478,7 @@ class DeformMatcher(Matcher):
         coarse_icp_iterations: int = 25,
         coarse_alpha: tuple[float, float] = (1.0, 0.1),
         fine_nodes: int = 500,
-        fine_icp_iterations: int = 12,
+        fine_icp_iterations: int = 25,
         fine_alpha: tuple[float, float] = (0.5, 0.05),
         swap_threshold: float = 0.05,
         swap_min_vertices: int = 50,
