@@ -442,7 +442,8 @@ class DeformMatcher(Matcher):
         training pairs (coarse study, exact geodesics, mean of pairs) the choice among
         the three continued went from 7.21 (best verified) to 5.72, the best of the
         three on every pair, for weights 0.005-0.03; on the built-in synthetic pairs
-        from 12.22 to 2.80 for 0.025-0.05 (see ``docs/flagship.md``).
+        from 12.22 to 2.80 for 0.025-0.05. In the matcher (Dijkstra, pooled): training
+        pairs 7.05 -> 5.80, built-in 12.04 -> 2.74 (see ``docs/flagship.md``).
     rigid_frames : tuple of str
         Rigid hypotheses verified after the spectral ones (see
         :func:`rigid_hypotheses`): ``"as-given"`` and/or ``"principal-axes"``; ``()``
