@@ -200,13 +200,18 @@ class _GramPattern:
         active = np.flatnonzero(np.any(per_vertex != 0, axis=1))
         return np.asarray(self.vertex_products[active].T @ per_vertex[active])
 
-    def laplacian(self, dir_a: IndexArray, dir_b: IndexArray, weights: FloatArray) -> FloatArray:
-        """Upper triangle of ``D diag(w) D^T`` for directed links ``dir_a -> dir_b``, shape (n_entries,).
+    def laplacian(self, weights: FloatArray) -> FloatArray:
+        """Upper triangle of ``D diag(w) D^T`` over the directed links, shape (n_entries,).
 
-        The directed links are the graph's links followed by the same links reversed.
+        Parameters
+        ----------
+        weights : ndarray, shape (2 n_links,)
+            Weight of each directed link: the graph's links ``a -> b`` followed by the
+            same links reversed.
         """
+        a, b = self.rows[self.link_entries], self.cols[self.link_entries]
         entries = np.r_[self.link_entries, self.link_entries]
-        idx = np.concatenate([self.diagonal[dir_a], self.diagonal[dir_b], entries])
+        idx = np.concatenate([self.diagonal[np.r_[a, b]], self.diagonal[np.r_[b, a]], entries])
         return np.bincount(idx, weights=np.concatenate([weights, weights, -weights]), minlength=self.n_entries)
 
     def solve(self, blocks: dict[tuple[int, int], FloatArray], rhs: FloatArray, x0: FloatArray) -> FloatArray:
@@ -307,8 +312,8 @@ class GraphDeformation:
         self._dir_rest = self.graph.rest[self._dir_b] - self.graph.rest[self._dir_a]
         nd = len(self._dir_a)
         self._Ia = sparse.csr_matrix((np.ones(nd), (self._dir_a, np.arange(nd))), shape=(m, nd))
-        self._Ib = sparse.csr_matrix((np.ones(nd), (self._dir_b, np.arange(nd))), shape=(m, nd))
-        self._D = (self._Ib - self._Ia).tocsr()
+        Ib = sparse.csr_matrix((np.ones(nd), (self._dir_b, np.arange(nd))), shape=(m, nd))
+        self._D = (Ib - self._Ia).tocsr()
         self._pattern = _gram_pattern(self.graph, self._skin)
         self._lg: FloatArray | None = None
         self._lg_scale: FloatArray | None = None
@@ -380,7 +385,7 @@ class GraphDeformation:
     def _regulariser(self, wl: FloatArray) -> FloatArray:
         """``D diag(wl) D^T`` (the graph Laplacian of the link term) on the Gram pattern, kept while the link weights stay."""
         if self._lg is None or self._lg_scale is not self.link_scale:
-            self._lg = self._pattern.laplacian(self._dir_a, self._dir_b, wl)
+            self._lg = self._pattern.laplacian(wl)
             self._lg_scale = self.link_scale
         return self._lg
 
@@ -466,6 +471,12 @@ _PARALLEL_QUERY = 20000
 """Queries with more points than this use all cores."""
 
 
+def _query_workers(n_points: int) -> int:
+    # scipy starts threads on every query with workers=-1: slower than one thread for
+    # the few thousand points of a sample (the registrations run on threads anyway)
+    return -1 if n_points > _PARALLEL_QUERY else 1
+
+
 def nearest_compatible(
     points: FloatArray,
     normals: FloatArray,
@@ -485,15 +496,12 @@ def nearest_compatible(
     index : ndarray, shape (q,)
     distance : ndarray, shape (q,)
     """
-    # scipy starts threads on every query with workers=-1: slower than one thread for
-    # the few thousand points of a sample (the registrations run on threads anyway)
-    workers = -1 if len(points) > _PARALLEL_QUERY else 1
-    d, idx = tree.query(points, k=1, workers=workers)
+    d, idx = tree.query(points, k=1, workers=_query_workers(len(points)))
     if k == 1:
         return idx, d
     bad = np.flatnonzero(np.einsum("qc,qc->q", normals, ref_normals[idx]) < min_cos)
     if bad.size:
-        dk, ik = tree.query(points[bad], k=k, workers=-1 if len(bad) > _PARALLEL_QUERY else 1)
+        dk, ik = tree.query(points[bad], k=k, workers=_query_workers(len(bad)))
         cos = np.einsum("qc,qkc->qk", normals[bad], ref_normals[ik])
         ok = cos >= min_cos
         first = np.where(ok.any(axis=1), np.argmax(ok, axis=1), 0)

@@ -34,10 +34,11 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
+from typing import TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -75,6 +76,8 @@ from topomatch.typing import FloatArray, IndexArray
 __all__ = ["DeformMatcher", "Hypothesis", "map_from_deformed", "rigid_hypotheses", "spectral_hypotheses", "swap_regions"]
 
 logger = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -558,8 +561,13 @@ class DeformMatcher(Matcher):
             if len(tv) >= 4:
                 yield Hypothesis(name, p[tv], tv)
 
-    def _n_threads(self) -> int:
-        return self.n_threads if self.n_threads is not None else min(4, os.cpu_count() or 1)
+    def _map(self, fn: Callable[[_T], RegistrationResult], items: Sequence[_T]) -> list[RegistrationResult]:
+        """``[fn(x) for x in items]``, on ``n_threads`` threads (the CPU count, at most 4, by default)."""
+        n = min(self.n_threads if self.n_threads is not None else min(4, os.cpu_count() or 1), len(items))
+        if n <= 1:
+            return [fn(x) for x in items]
+        with ThreadPoolExecutor(max_workers=n) as pool:
+            return list(pool.map(fn, items))
 
     def _setup(self, source: TriangleMesh, target: TriangleMesh) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph]:
         """Check the pair; farthest-point samples of both shapes and the coarse graph (shared by every step)."""
@@ -630,14 +638,9 @@ class DeformMatcher(Matcher):
                     break
             return hyps, results
         hyps = list(candidates)
-        n = self._n_threads()
         # the registrations' small dense solves lose to BLAS threads competing with ours
         with threadpool_limits(limits=1, user_api="blas"):
-            if n > 1 and len(hyps) > 1:
-                with ThreadPoolExecutor(max_workers=n) as pool:
-                    results = list(pool.map(verify, hyps))
-            else:
-                results = [verify(h) for h in hyps]
+            results = self._map(verify, hyps)
         return hyps, results
 
     def _refine(
@@ -678,12 +681,7 @@ class DeformMatcher(Matcher):
                 return register(source.vertices, source.faces, W, target.faces, None, cont, graph=graph, start=starts[i], samples=samples)
 
             ids = list(starts)
-            n = min(self._n_threads(), len(ids))
-            if n > 1:
-                with ThreadPoolExecutor(max_workers=n) as pool:
-                    runs = list(pool.map(go, ids))
-            else:
-                runs = [go(i) for i in ids]
+            runs = self._map(go, ids)
             scores = [r.residual + self.distortion_weight * r.distortion for r in runs]
             i_best = ids[int(np.argmin(scores))]
             for i, r in zip(ids, runs):
