@@ -9,7 +9,12 @@ from topomatch.datasets.toy import icosphere
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
 from topomatch.matching import MATCHERS, make_matcher
-from topomatch.matching.deform import rigid_hypotheses, swap_regions
+from topomatch.matching.deform import (
+    articulated_hypotheses,
+    bend_in_two,
+    rigid_hypotheses,
+    swap_regions,
+)
 from topomatch.mesh import TriangleMesh
 
 from ._fmap_shapes import bumpy, shuffled
@@ -134,9 +139,12 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair):
     assert c.info["hypothesis"] in c.info["residuals"]
     # the default rigid hypotheses were verified too (as given + four principal-axis frames)
     assert {"rigid as-given", "rigid axes +++", "rigid axes +--", "rigid axes -+-", "rigid axes --+"} <= set(c.info["residuals"])
-    # deterministic, and the same with the verification on one thread
+    # deterministic, and the same with the verification on one thread (not pipelined):
+    # same hypotheses in the same order, same residuals, same map
     np.testing.assert_array_equal(m.match(src, tgt).p2p_21, c.p2p_21)
-    np.testing.assert_array_equal(m.set_params(n_threads=1).match(src, tgt).p2p_21, c.p2p_21)
+    c1 = m.set_params(n_threads=1).match(src, tgt)
+    np.testing.assert_array_equal(c1.p2p_21, c.p2p_21)
+    assert list(c1.info["residuals"].items()) == list(c.info["residuals"].items())
 
 
 def test_deform_matcher_rejects_bad_parameters(pair):
@@ -170,6 +178,11 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", distortion_weight=-0.01).match(src, tgt)
     with pytest.raises(ValueError, match="n_continue"):
         make_matcher("deform", n_continue=0).match(src, tgt)
+    with pytest.raises(ValueError, match="articulated"):
+        make_matcher("deform", articulated=-1).match(src, tgt)
+    for angles in ((), (0.0,), (200.0,), 90.0, ("90",)):
+        with pytest.raises(ValueError, match="bend_angles"):
+            make_matcher("deform", bend_angles=angles).match(src, tgt)
 
 
 def test_deform_chooses_by_fit_and_distortion_after_continuing(pair):
@@ -207,7 +220,7 @@ def test_deform_does_not_turn_the_figure_around(builtin):
 
 def test_deform_matcher_hypotheses_from_other_matchers(pair):
     src, tgt, _ = pair
-    m = make_matcher("deform", hypotheses=(("hks", 10, True),), matcher_hypotheses=("em",), rigid_frames=(),
+    m = make_matcher("deform", hypotheses=(("hks", 10, True),), matcher_hypotheses=("em",), rigid_frames=(), articulated=0,
                      n_samples=800, coarse_nodes=80, fine_nodes=200)
     c = m.match(src, tgt)
     assert set(c.info["residuals"]) == {"hks k=10 reversing", "em"}
@@ -242,3 +255,59 @@ def test_rigid_hypotheses_recover_a_rotated_scaled_moved_copy():
     assert np.mean(np.linalg.norm(src.vertices[h.p2p] - src.vertices[perm[s2]], axis=1)) / scale < 0.01
     with pytest.raises(ValueError, match="rigid frames"):
         list(rigid_hypotheses(src, moved, s1, s2, ("sideways",)))
+
+
+def test_bend_in_two_turns_one_half_about_the_hinge(builtin):
+    mesh = builtin["syn00"].mesh
+    basis = mesh.eigenbasis(2)
+    f, mass = basis.evecs[:, 1], basis.mass
+    bends = bend_in_two(mesh.vertices, mesh.faces, f, mass, 90.0)
+    assert [label for label, _ in bends] == ["half a +90", "half a -90", "half b +90", "half b -90"]
+    V = mesh.vertices
+    f_mid = np.sort(f)[np.searchsorted(np.cumsum(mass[np.argsort(f)]), 0.5 * mass.sum())]
+    half_a = f > f_mid
+    assert 0.45 < mass[half_a].sum() / mass.sum() < 0.55
+    moved = [np.linalg.norm(Vb - V, axis=1) > 1e-9 for _, Vb in bends]
+    assert np.array_equal(moved[0], moved[1]) and np.array_equal(moved[2], moved[3])
+    assert np.array_equal(moved[0], ~moved[2])  # the two halves, each turned as a whole
+    assert (moved[0] >= half_a).all() and (moved[0] <= (f >= f_mid)).all()  # the vertices at the median join one side
+    for label, Vb in bends:
+        turned = moved[0] if label.startswith("half a") else moved[2]
+        # rigid per half: distances within the turned half are kept
+        i, j = np.flatnonzero(turned)[[0, -1]]
+        assert np.isclose(np.linalg.norm(Vb[i] - Vb[j]), np.linalg.norm(V[i] - V[j]))
+    # the split direction (between the halves' centroids) turns by the bending angle
+    d0 = V[half_a].mean(0) - V[~half_a].mean(0)
+    Vb = bends[0][1]
+    d1 = Vb[half_a].mean(0) - Vb[~half_a].mean(0)
+    hinge_dist = np.linalg.norm(V[half_a].mean(0) - Vb[half_a].mean(0))
+    assert hinge_dist > 0.1 * np.linalg.norm(d0) and np.degrees(np.arccos(d0 @ d1 / np.linalg.norm(d0) / np.linalg.norm(d1))) > 20
+    # the set of bent shapes does not depend on the eigenvector's sign
+    flipped = bend_in_two(V, mesh.faces, -f, mass, 90.0)
+    for _, Vb in bends:
+        assert min(np.abs(Vb - Wb).max() for _, Wb in flipped) < 1e-9 * np.abs(V).max()
+
+
+def test_articulated_hypotheses_recover_a_figure_bent_in_two(builtin):
+    src = builtin["syn00"].mesh
+    basis = src.eigenbasis(2)
+    label, Vb = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, 90.0)[2]
+    tgt0, perm = shuffled(TriangleMesh(Vb, src.faces), seed=4)  # tgt0 vertex i is source vertex perm[i]
+    tgt = TriangleMesh(1.3 * tgt0.vertices + np.array([0.5, -2.0, 1.0]), tgt0.faces)
+    s1 = np.arange(0, src.n_vertices, 4)
+    s2 = np.arange(0, tgt.n_vertices, 4)
+    scale = np.sqrt(src.area)
+
+    def error(p2p: np.ndarray) -> float:
+        return float(np.mean(np.linalg.norm(src.vertices[p2p] - src.vertices[perm[s2]], axis=1)) / scale)
+
+    hyps = list(articulated_hypotheses(src, tgt, s1, s2, n_keep=4, angles=(90.0,)))
+    assert len(hyps) == 4 and all(h.p2p.shape == s2.shape for h in hyps)
+    assert hyps[0].label == f"bent {label}"  # the best-fitting bent copy comes first
+    assert error(hyps[0].p2p) < 0.01
+    assert min(error(h.p2p) for h in hyps[1:]) > 0.05
+    (rigid,) = rigid_hypotheses(src, tgt, s1, s2, ("as-given",))
+    assert error(rigid.p2p) > 0.05  # unbent, the rigid hypothesis cannot reach the pose
+    # with the default angles (60, 90, 120) the right one still fits best
+    (best,) = articulated_hypotheses(src, tgt, s1, s2, n_keep=1)
+    assert best.label == f"bent {label}"
