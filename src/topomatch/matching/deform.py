@@ -785,12 +785,15 @@ class DeformMatcher(Matcher):
             icp_iterations=self.coarse_icp_iterations,
             alpha_icp=tuple(self.coarse_alpha),
         )
-        candidates = chain(
-            spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout),
+        # generators: nothing is computed before a hypothesis is asked for
+        spectral = spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout)
+        extrinsic = chain(
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
-            articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles)) if self.articulated > 0 else iter(()),
-            self._matcher_hypotheses(source, target, s2),
+            articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
+            if self.articulated > 0
+            else iter(()),
         )
+        others = self._matcher_hypotheses(source, target, s2)
 
         def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
@@ -801,7 +804,7 @@ class DeformMatcher(Matcher):
 
         if self.accept_residual > 0:
             hyps, results = [], []
-            for h in candidates:
+            for h in chain(spectral, extrinsic, others):
                 hyps.append(h)
                 results.append(verify(h))
                 if results[-1].residual < self.accept_residual:
@@ -809,22 +812,18 @@ class DeformMatcher(Matcher):
             return hyps, results
         n = self._n_threads()
         if n <= 1:
-            hyps = list(candidates)
+            hyps = list(chain(spectral, extrinsic, others))
             with threadpool_limits(limits=1, user_api="blas"):
                 results = self._map(verify, hyps)
             return hyps, results
         # pipelined: the extrinsic hypotheses (cheap) are verified on the pool while this
-        # thread computes the spectral ones (the costly part); lists keep the order above
-        spectral = spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout)
-        extrinsic = chain(
-            rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
-            articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles)) if self.articulated > 0 else iter(()),
-        )
-        # the registrations' small dense solves lose to BLAS threads competing with ours
+        # thread computes the spectral ones (the costly part); the lists keep the order
+        # spectral, extrinsic, others. The registrations' small dense solves lose to BLAS
+        # threads competing with ours.
         with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=n) as pool:
             later = [(h, pool.submit(verify, h)) for h in extrinsic]
             first = [(h, pool.submit(verify, h)) for h in spectral]
-            last = [(h, pool.submit(verify, h)) for h in self._matcher_hypotheses(source, target, s2)]
+            last = [(h, pool.submit(verify, h)) for h in others]
             done = first + later + last
             return [h for h, _ in done], [f.result() for _, f in done]
 
