@@ -785,6 +785,10 @@ class DeformMatcher(Matcher):
             icp_iterations=self.coarse_icp_iterations,
             alpha_icp=tuple(self.coarse_alpha),
         )
+        if self.articulated > 0:
+            # the bent copies split at the Fiedler vector: take it from the basis the
+            # spectral hypotheses compute anyway (no separate two-eigenpair solve)
+            source.eigenbasis(self.k_zoomout)
         # generators: nothing is computed before a hypothesis is asked for
         spectral = spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout)
         extrinsic = chain(
