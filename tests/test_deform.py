@@ -261,7 +261,7 @@ def test_bend_in_two_turns_one_half_about_the_hinge(builtin):
     mesh = builtin["syn00"].mesh
     basis = mesh.eigenbasis(2)
     f, mass = basis.evecs[:, 1], basis.mass
-    bends = bend_in_two(mesh.vertices, mesh.faces, f, mass, 90.0)
+    bends = bend_in_two(mesh.vertices, mesh.faces, f, mass, (90.0,))
     assert [label for label, _ in bends] == ["half a +90", "half a -90", "half b +90", "half b -90"]
     V = mesh.vertices
     f_mid = np.sort(f)[np.searchsorted(np.cumsum(mass[np.argsort(f)]), 0.5 * mass.sum())]
@@ -283,7 +283,7 @@ def test_bend_in_two_turns_one_half_about_the_hinge(builtin):
     hinge_dist = np.linalg.norm(V[half_a].mean(0) - Vb[half_a].mean(0))
     assert hinge_dist > 0.1 * np.linalg.norm(d0) and np.degrees(np.arccos(d0 @ d1 / np.linalg.norm(d0) / np.linalg.norm(d1))) > 20
     # the set of bent shapes does not depend on the eigenvector's sign
-    flipped = bend_in_two(V, mesh.faces, -f, mass, 90.0)
+    flipped = bend_in_two(V, mesh.faces, -f, mass, (90.0,))
     for _, Vb in bends:
         assert min(np.abs(Vb - Wb).max() for _, Wb in flipped) < 1e-9 * np.abs(V).max()
 
@@ -291,7 +291,7 @@ def test_bend_in_two_turns_one_half_about_the_hinge(builtin):
 def test_articulated_hypotheses_recover_a_figure_bent_in_two(builtin):
     src = builtin["syn00"].mesh
     basis = src.eigenbasis(2)
-    label, Vb = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, 90.0)[2]
+    label, Vb = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))[2]
     tgt0, perm = shuffled(TriangleMesh(Vb, src.faces), seed=4)  # tgt0 vertex i is source vertex perm[i]
     tgt = TriangleMesh(1.3 * tgt0.vertices + np.array([0.5, -2.0, 1.0]), tgt0.faces)
     s1 = np.arange(0, src.n_vertices, 4)

@@ -23,6 +23,7 @@ import numpy as np
 from topomatch.datasets._isosurface import marching_tetrahedra
 from topomatch.datasets._surface import decimate, keep_largest_component, mirror_symmetry
 from topomatch.mesh import TriangleMesh
+from topomatch.mesh.geometry import axis_rotation
 from topomatch.typing import FloatArray, IndexArray
 
 __all__ = ["POSES", "Figure", "Pose", "build_figure"]
@@ -173,13 +174,6 @@ def body_grid(origin: FloatArray, spacing: float, shape: tuple[int, int, int], b
 # ---------------------------------------------------------------------------------------
 # poses
 # ---------------------------------------------------------------------------------------
-def _rotation(axis: FloatArray, angle: float) -> FloatArray:
-    a = np.asarray(axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
-
-
 def _align(u: FloatArray, v: FloatArray) -> FloatArray:
     """Smallest rotation taking direction u to direction v."""
     u = u / np.linalg.norm(u)
@@ -191,8 +185,8 @@ def _align(u: FloatArray, v: FloatArray) -> FloatArray:
         if c > 0:
             return np.eye(3)
         perp = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
-        return _rotation(perp, np.pi)
-    return _rotation(axis, float(np.arctan2(s, c)))
+        return axis_rotation(perp, np.pi)
+    return axis_rotation(axis, float(np.arctan2(s, c)))
 
 
 @dataclass
@@ -228,7 +222,7 @@ class Pose:
 
     def turn(self, bone: str, axis: FloatArray, degrees: float) -> Pose:
         """Rotate ``bone`` (and, through inheritance, its children) about world ``axis``."""
-        rot = _rotation(np.asarray(axis, dtype=np.float64), np.radians(degrees))
+        rot = axis_rotation(np.asarray(axis, dtype=np.float64), np.radians(degrees))
         cur = self.world()[bone][0]
         below = {bone}
         for name, (parent, _, _) in BONES.items():  # parents are listed before children

@@ -40,7 +40,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from itertools import chain
+from itertools import chain, product
 from typing import TypeVar
 
 import numpy as np
@@ -72,7 +72,7 @@ from topomatch.maps.zoomout import _fmap_from_p2p_rows, zoomout_schedule
 from topomatch.matching.base import Correspondence, Matcher
 from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
-from topomatch.mesh.geometry import vertex_normals
+from topomatch.mesh.geometry import axis_rotation, edges_with_counts, vertex_normals
 from topomatch.mesh.sampling import farthest_point_sampling
 from topomatch.typing import FloatArray, IndexArray
 
@@ -218,6 +218,12 @@ def _rigid_icp(
     return R, t
 
 
+def _nearest_aligned(W: FloatArray, Nw: FloatArray, X: FloatArray, NX: FloatArray) -> IndexArray:
+    """For each target sample ``W`` (normals ``Nw``), the nearest aligned source vertex ``X`` (normals ``NX``) with a compatible normal."""
+    j, _ = nearest_compatible(W, Nw, cKDTree(X), NX, min_cos=0.3)
+    return np.asarray(j, dtype=np.int64)
+
+
 def rigid_hypotheses(
     source: TriangleMesh,
     target: TriangleMesh,
@@ -280,17 +286,12 @@ def rigid_hypotheses(
     NX = source.vertex_normals[s1]
     for label, R0 in starts:
         R, t = _rigid_icp(X, NX, W, Nw, R0, c2 - scale * (R0 @ c1), icp_iterations)
-        j, _ = nearest_compatible(W, Nw, cKDTree(scale * V @ R.T + t), source.vertex_normals @ R.T, min_cos=0.3)
-        yield Hypothesis(label, np.asarray(j, dtype=np.int64))
+        yield Hypothesis(label, _nearest_aligned(W, Nw, scale * V @ R.T + t, source.vertex_normals @ R.T))
 
 
-def _axis_rotation(axis: FloatArray, angle: float) -> FloatArray:
-    """Rotation by ``angle`` (radians) about the unit vector ``axis``, shape (3, 3)."""
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
-
-
-def bend_in_two(vertices: FloatArray, faces: IndexArray, fiedler: FloatArray, mass: FloatArray, angle: float) -> list[tuple[str, FloatArray]]:
+def bend_in_two(
+    vertices: FloatArray, faces: IndexArray, fiedler: FloatArray, mass: FloatArray, angles: Sequence[float]
+) -> list[tuple[str, FloatArray]]:
     """The source bent in two at the median of its Fiedler vector, each half turned both ways.
 
     The split is at the area-weighted median of ``fiedler`` (the vertices at the median
@@ -309,15 +310,16 @@ def bend_in_two(vertices: FloatArray, faces: IndexArray, fiedler: FloatArray, ma
         First non-constant Laplacian eigenvector.
     mass : ndarray, shape (n,)
         Vertex areas.
-    angle : float
-        Degrees.
+    angles : sequence of float
+        Degrees; the split, hinge and axis are computed once for all of them.
 
     Returns
     -------
     list of (str, ndarray of shape (n, 3))
-        A label and the bent vertex positions: half a (``fiedler`` above the median)
-        turned by ``+angle`` and ``-angle``, then half b; empty if the split
-        leaves a half empty. The set does not depend on the eigenvector's sign.
+        A label and the bent vertex positions, four per angle in the order of
+        ``angles``: half a (``fiedler`` above the median) turned by ``+angle`` and
+        ``-angle``, then half b; empty if the split leaves a half empty. The set does
+        not depend on the eigenvector's sign.
     """
     V = np.asarray(vertices, dtype=np.float64)
     order = np.argsort(fiedler, kind="stable")
@@ -326,7 +328,7 @@ def bend_in_two(vertices: FloatArray, faces: IndexArray, fiedler: FloatArray, ma
     above, below = fiedler > f_mid, fiedler < f_mid
     # the vertices at the median go to the lighter side: the split does not depend on the sign
     half_a = above | ((fiedler == f_mid) & (mass[above].sum() < mass[below].sum()))
-    E = np.r_[faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]
+    E = edges_with_counts(np.asarray(faces))[0]
     cross = E[half_a[E[:, 0]] != half_a[E[:, 1]]]
     if not half_a.any() or half_a.all() or len(cross) == 0:
         return []
@@ -335,15 +337,13 @@ def bend_in_two(vertices: FloatArray, faces: IndexArray, fiedler: FloatArray, ma
     d /= np.linalg.norm(d)
     axes = np.linalg.svd(V - V.mean(axis=0), full_matrices=False)[2]
     perp = axes - np.outer(axes @ d, d)
-    axis = perp[int(np.argmax(np.linalg.norm(perp, axis=1) > 0.5))]
-    axis = axis / np.linalg.norm(axis)
+    axis = perp[int(np.argmax(np.linalg.norm(perp, axis=1) > 0.5))]  # axis_rotation normalises it
     out = []
-    for name, half in (("a", half_a), ("b", ~half_a)):
-        for sign in (1.0, -1.0):
-            R = _axis_rotation(axis, np.deg2rad(sign * angle))
-            Vb = V.copy()
-            Vb[half] = (V[half] - hinge) @ R.T + hinge
-            out.append((f"half {name} {sign * angle:+.0f}", Vb))
+    for angle, (name, half), sign in product(angles, (("a", half_a), ("b", ~half_a)), (1.0, -1.0)):
+        R = axis_rotation(axis, np.deg2rad(sign * angle))
+        Vb = V.copy()
+        Vb[half] = (V[half] - hinge) @ R.T + hinge
+        out.append((f"half {name} {sign * angle:+.0f}", Vb))
     return out
 
 
@@ -396,8 +396,7 @@ def articulated_hypotheses(
     c2 = target.vertices.mean(axis=0)
     tree = cKDTree(W)
     scored = []
-    bends = chain.from_iterable(bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, a) for a in angles)
-    for label, Vb in bends:
+    for label, Vb in bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles):
         Nb = vertex_normals(Vb, source.faces)
         R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, np.eye(3), c2 - scale * Vb.mean(axis=0), icp_iterations)
         X = scale * Vb[s1] @ R.T + t
@@ -409,8 +408,7 @@ def articulated_hypotheses(
     scored.sort(key=lambda x: x[0])
     for residual, label, Vb, Nb, R, t in scored[:n_keep]:
         logger.debug("bent %s: rigid residual %.4f", label, residual / np.sqrt(target.area))
-        j, _ = nearest_compatible(W, Nw, cKDTree(scale * Vb @ R.T + t), Nb @ R.T, min_cos=0.3)
-        yield Hypothesis(f"bent {label}", np.asarray(j, dtype=np.int64))
+        yield Hypothesis(f"bent {label}", _nearest_aligned(W, Nw, scale * Vb @ R.T + t, Nb @ R.T))
 
 
 def swap_regions(

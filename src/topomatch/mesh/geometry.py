@@ -14,6 +14,7 @@ from scipy.sparse import csgraph
 from topomatch.typing import BoolArray, FloatArray, IndexArray
 
 __all__ = [
+    "axis_rotation",
     "boundary_edges",
     "boundary_loops",
     "connected_components",
@@ -195,3 +196,23 @@ def referenced_vertices(n_vertices: int, faces: IndexArray) -> BoolArray:
     used = np.zeros(n_vertices, dtype=bool)
     used[faces.ravel()] = True
     return used
+
+
+def axis_rotation(axis: FloatArray, angle: float) -> FloatArray:
+    """Rotation by ``angle`` radians about ``axis`` (Rodrigues' formula).
+
+    Parameters
+    ----------
+    axis : ndarray, shape (3,)
+        Any non-zero length; it is normalised.
+    angle : float
+        Radians, counter-clockwise looking down the axis.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
