@@ -2,20 +2,27 @@
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from topomatch.datasets.toy import icosphere
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
 from topomatch.matching import MATCHERS, make_matcher
 from topomatch.matching.deform import (
+    _sphere_directions,
     articulated_hypotheses,
     bend_in_two,
     rigid_hypotheses,
+    source_limbs,
     swap_regions,
+    turn_limb,
 )
 from topomatch.mesh import TriangleMesh
+from topomatch.mesh.geometry import axis_rotation
 
 from ._fmap_shapes import bumpy, shuffled
 
@@ -183,6 +190,11 @@ def test_deform_matcher_rejects_bad_parameters(pair):
     for angles in ((), (0.0,), (200.0,), 90.0, ("90",)):
         with pytest.raises(ValueError, match="bend_angles"):
             make_matcher("deform", bend_angles=angles).match(src, tgt)
+    with pytest.raises(ValueError, match="limb_rounds"):
+        make_matcher("deform", limb_rounds=-1).match(src, tgt)
+    for gain in (-0.1, 1.0, "0.01"):
+        with pytest.raises(ValueError, match="limb_min_gain"):
+            make_matcher("deform", limb_min_gain=gain).match(src, tgt)
 
 
 def test_deform_chooses_by_fit_and_distortion_after_continuing(pair):
@@ -311,3 +323,71 @@ def test_articulated_hypotheses_recover_a_figure_bent_in_two(builtin):
     # with the default angles (60, 90, 120) the right one still fits best
     (best,) = articulated_hypotheses(src, tgt, s1, s2, n_keep=1)
     assert best.label == f"bent {label}"
+
+
+def _part_root(graph, faces_mesh: TriangleMesh, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    limb = np.isin(graph.labels, nodes)
+    E = faces_mesh.edges
+    leaving = limb[E[:, 0]] != limb[E[:, 1]]
+    ring = np.unique(np.where(limb[E[leaving, 0]], E[leaving, 0], E[leaving, 1]))
+    return limb, faces_mesh.vertices[ring].mean(axis=0)
+
+
+def test_source_limbs_are_the_figure_s_head_arms_and_legs(builtin):
+    src = builtin["syn00"].mesh
+    graph = build_deformation_graph(src.vertices, src.faces, 150)
+    parts = source_limbs(graph)
+    limbs = parts[:5]
+    # five limbs (head, two arms, two legs), disjoint, then outer halves nested in them
+    assert 5 <= len(parts) <= 10
+    assert len(np.unique(np.concatenate(limbs))) == sum(len(p) for p in limbs)
+    for outer in parts[5:]:
+        assert any(set(outer) < set(limb) for limb in limbs)
+    # the limbs' ends are the figure's extremities: together they hold its five farthest-apart tips
+    V = src.vertices
+    centre = V.mean(axis=0)
+    tips = [int(np.argmax(np.where(np.isin(graph.labels, limb), np.linalg.norm(V - centre, axis=1), -1))) for limb in limbs]
+    assert len(set(tips)) == 5
+    assert source_limbs(build_deformation_graph(src.vertices, src.faces, 4)) == []
+
+
+def test_turn_limb_puts_a_turned_limb_back(builtin):
+    """The target is the figure with one limb turned; the untouched figure as the
+    "registration" leaves that limb in the wrong place, and the search turns it back."""
+    src = builtin["syn00"].mesh
+    graph = build_deformation_graph(src.vertices, src.faces, 150)
+    parts = source_limbs(graph)
+    samples = (np.arange(0, src.n_vertices, 3), np.arange(1, src.n_vertices, 3))
+    scale = np.sqrt(src.area)
+    on_grid = axis_rotation(_sphere_directions(26)[7], np.deg2rad(120.0))  # one of the turns searched
+    off_grid = axis_rotation(np.array([0.3, -0.2, 1.0]), np.deg2rad(100.0))
+    for k, R, most in ((1, on_grid, 0.1), (3, on_grid, 0.1), (3, off_grid, 0.75)):
+        limb, root = _part_root(graph, src, parts[k])
+        Vt = src.vertices.copy()
+        Vt[limb] = (Vt[limb] - root) @ R.T + root
+        tgt = TriangleMesh(Vt, src.faces)
+        # how far the limb lies from the target's limb (a turn about its own axis is free)
+        tree = cKDTree(Vt[limb])
+        before = float(tree.query(src.vertices[limb])[0].mean() / scale)
+        moved, move = turn_limb(src, tgt, src.vertices, graph, parts, samples)
+        assert move is not None and move[0] == k and 0 < move[1] < 1 - 0.005
+        after = float(tree.query(moved[limb])[0].mean() / scale)
+        assert before > 0.02 and after < most * before, (k, before, after)
+        assert np.array_equal(moved[~limb], src.vertices[~limb])  # nothing else moved
+    # a registration already in place: no turn counts
+    same, move = turn_limb(src, src, src.vertices, graph, parts, samples)
+    assert move is None and np.array_equal(same, src.vertices)
+
+
+def test_deform_reports_the_limb_rounds(builtin):
+    target, source = builtin["syn05"], builtin["syn00"]
+    kw = {"n_samples": 800, "coarse_nodes": 100, "fine_nodes": 200}
+    c = make_matcher("deform", **kw).match(source.mesh, target.mesh)
+    rounds = c.info["limbs"]
+    assert len(rounds) <= 3
+    for r in rounds:
+        assert 0 < r["coverage_ratio"] < 1 - 0.005
+        assert r["kept"] == (r["score_after"] < r["score"])
+    kept = [r for r in rounds if r["kept"]]
+    assert all(a["score_after"] == b["score"] for a, b in pairwise(kept))  # each round starts where the last ended
+    assert make_matcher("deform", limb_rounds=0, **kw).match(source.mesh, target.mesh).info["limbs"] == []
