@@ -502,9 +502,11 @@ def turn_limb(
     registered source then covers the target: the mean distance, capped at 0.05 x
     sqrt(source area), from each target sample to the nearest source sample with a
     compatible normal (target samples within a fifth of the cap of the rest of the
-    source count as covered either way). Only coverage counts: a limb lying on another part (doubling it)
-    costs nothing where it is, so the two-sided fit would keep it there; moved to where
-    the target has a limb left uncovered, it lowers the coverage distance.
+    source count as covered either way). Only coverage counts: a limb lying on another
+    part (doubling it) costs nothing where it is, so the two-sided fit would keep it
+    there; moved to where the target has a limb left uncovered, it lowers the coverage
+    distance. Parts with fewer than 16 source samples (or leaving fewer than 16 for the
+    rest) are skipped.
 
     Parameters
     ----------
