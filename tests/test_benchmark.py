@@ -31,7 +31,7 @@ def test_run_is_complete_and_resumable(tmp_path):
     s1 = run_benchmark(cfg, out, progress=False)
     ora = s1["methods"]["oracle"]
     assert ora["shrec16"]["auc_mean"] == 1.0 and ora["topkids25"]["mean_error"]["dijkstra"] == 0.0
-    for key in ("n_pairs", "mean_error", "auc_mean", "auc_best", "auc_worst", "area_matched", "excluded_fraction", "seconds_per_pair_median", "peak_rss_mb"):
+    for key in ("n_pairs", "mean_error", "auc_mean", "auc_best", "auc_worst", "area_matched", "excluded_fraction", "seconds_per_pair_median", "seconds_per_pair_mean", "seconds_total", "peak_rss_mb"):
         assert key in s1["methods"]["descriptor-nn"]["shrec16"]
     man = json.loads((out / "manifest.json").read_text())
     assert man["versions"]["numpy"] and man["protocols"]["shrec16"]["symmetric"] is True

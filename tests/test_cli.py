@@ -97,3 +97,22 @@ def test_match_defaults_to_the_flagship(tmp_path, capsys):
     assert main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.off"), "--out", str(tmp_path / "m.npy")]) == 0
     assert "deform:" in capsys.readouterr().err
     assert np.mean(np.load(tmp_path / "m.npy") == perm) > 0.95
+
+
+def test_match_through_a_template(tmp_path, capsys):
+    # template = a shape without symmetry; source and target = two shuffled copies of it:
+    # both registrations are exact, so the composed map is the copies' relative permutation
+    from ._fmap_shapes import bumpy, shuffled
+
+    tmpl = bumpy(3, mirror_symmetric=False)
+    src, perm_s = shuffled(tmpl, seed=1)
+    tgt, perm_t = shuffled(tmpl, seed=2)
+    for name, m in (("t.off", tmpl), ("a.off", src), ("b.off", tgt)):
+        write_mesh(tmp_path / name, m.vertices, m.faces)
+    args = ["match", str(tmp_path / "a.off"), str(tmp_path / "b.off"), "--out", str(tmp_path / "m.npy"), "--method", "template"]
+    assert main(args) == 2
+    assert "--param template.model=PATH" in capsys.readouterr().err
+    assert main([*args, "--param", f"template.model={tmp_path / 't.off'}"]) == 0
+    # target vertex i is template vertex perm_t[i]; source vertex j is template vertex perm_s[j]
+    expected = np.argsort(perm_s)[perm_t]
+    assert np.mean(np.load(tmp_path / "m.npy") == expected) > 0.95

@@ -451,6 +451,8 @@ def build_summary(run: RunDir, config: BenchmarkConfig, protocols: list, pair_se
                 "failed_pairs": failed,
                 "symmetric": p.symmetric,
                 "seconds_per_pair_median": float(np.median(secs)) if secs else None,
+                "seconds_per_pair_mean": float(np.mean(secs)) if secs else None,
+                "seconds_total": float(np.sum(secs)) if secs else None,
                 "peak_rss_mb": float(np.max(mems)) if mems else None,
                 "mean_error": {},
                 "geodesics": {},

@@ -24,7 +24,8 @@ def method_rows(summary: dict, labels: dict[str, str] | None = None) -> list[dic
 
     Columns: method, protocol, pairs, % area matched, AUC avg / best / worst, mean
     error for each geodesic kind (x100 for topkids25), % excluded, seconds per pair
-    (median), peak memory (MB).
+    (median, and mean: they differ for methods that reuse work across pairs, such as
+    ``template``), peak memory (MB).
     """
     labels = labels or {}
     rows = []
@@ -47,6 +48,7 @@ def method_rows(summary: dict, labels: dict[str, str] | None = None) -> list[dic
                     "mean error": (err + " (x100)" if err and proto == "topkids25" else err) or "-",
                     "excluded %": _fmt(None if b.get("excluded_fraction") is None else 100 * b["excluded_fraction"], ".1f"),
                     "s/pair": _fmt(b.get("seconds_per_pair_median"), ".2f"),
+                    "s/pair mean": _fmt(b.get("seconds_per_pair_mean"), ".2f"),
                     "peak MB": _fmt(b.get("peak_rss_mb"), ".0f"),
                 }
             )

@@ -16,6 +16,7 @@ from topomatch.matching.ge import GreenEmbeddingGT4Matcher, GreenEmbeddingMatche
 from topomatch.matching.oracle import MirroredOracleMatcher, OracleMatcher
 from topomatch.matching.random_map import RandomMatcher
 from topomatch.matching.rf import RandomForestMatcher
+from topomatch.matching.template import TemplateMatcher
 from topomatch.matching.zoomout import ZoomOutMatcher
 
 __all__ = ["DEFAULT_METHOD", "MATCHERS", "Correspondence", "Matcher", "NotFittedError", "make_matcher"]
@@ -32,6 +33,7 @@ MATCHERS: dict[str, type[Matcher]] = {
     "fmap": FunctionalMapMatcher,
     "zoomout": ZoomOutMatcher,
     "deform": DeformMatcher,
+    "template": TemplateMatcher,
 }
 
 DEFAULT_METHOD = "deform"

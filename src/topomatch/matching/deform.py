@@ -48,7 +48,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain, product
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -1113,7 +1113,23 @@ class DeformMatcher(Matcher):
             starts[i_best], score = r.deformed, new
         return rounds
 
-    def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
+    def register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
+        """Deform the source onto the target (the registration behind :meth:`match`).
+
+        Parameters
+        ----------
+        source : TriangleMesh
+            Shape 1, the shape that is deformed.
+        target : TriangleMesh
+            Shape 2.
+
+        Returns
+        -------
+        deformed : ndarray, shape (n_source, 3)
+            The source's vertices after the chosen registration.
+        info : dict
+            Diagnostics, as in ``Correspondence.info``.
+        """
         t0 = time.perf_counter()
         settings = self._check()
         samples, graph = self._setup(source, target)
@@ -1122,7 +1138,6 @@ class DeformMatcher(Matcher):
         t1 = time.perf_counter()
         with threadpool_limits(limits=1, user_api="blas"):
             i_best, r_best, swaps, continued, limbs = self._refine(source, target, hyps, results, order, samples, graph)
-        p2p = map_from_deformed(target, r_best.deformed, source.faces)
         t2 = time.perf_counter()
         info = {
             "hypothesis": hyps[i_best].label,
@@ -1134,4 +1149,11 @@ class DeformMatcher(Matcher):
             "distortion": r_best.distortion,
             "seconds": {"hypotheses_and_verification": t1 - t0, "refinement": t2 - t1},
         }
+        return r_best.deformed, info
+
+    def match(self, source: TriangleMesh, target: TriangleMesh) -> Correspondence:  # noqa: D102
+        deformed, info = self.register(source, target)
+        t0 = time.perf_counter()
+        p2p = map_from_deformed(target, deformed, source.faces)
+        info["seconds"]["refinement"] += time.perf_counter() - t0
         return Correspondence(p2p, info=info)
