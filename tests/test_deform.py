@@ -195,6 +195,9 @@ def test_deform_matcher_rejects_bad_parameters(pair):
     for gain in (-0.1, 1.0, "0.01"):
         with pytest.raises(ValueError, match="limb_min_gain"):
             make_matcher("deform", limb_min_gain=gain).match(src, tgt)
+    for n in (0, 1.5):
+        with pytest.raises(ValueError, match="limb_candidates"):
+            make_matcher("deform", limb_candidates=n).match(src, tgt)
 
 
 def test_deform_chooses_by_fit_and_distortion_after_continuing(pair):
@@ -369,14 +372,24 @@ def test_turn_limb_puts_a_turned_limb_back(builtin):
         # how far the limb lies from the target's limb (a turn about its own axis is free)
         tree = cKDTree(Vt[limb])
         before = float(tree.query(src.vertices[limb])[0].mean() / scale)
-        moved, move = turn_limb(src, tgt, src.vertices, graph, parts, samples)
-        assert move is not None and move[0] == k and 0 < move[1] < 1 - 0.005
+        found = turn_limb(src, tgt, src.vertices, graph, parts, samples, n_best=3)
+        assert 1 <= len(found) <= 3
+        moved, move = found[0]
+        assert move[0] == k and 0 < move[1] < 1 - 0.005
         after = float(tree.query(moved[limb])[0].mean() / scale)
         assert before > 0.02 and after < most * before, (k, before, after)
         assert np.array_equal(moved[~limb], src.vertices[~limb])  # nothing else moved
+        # the other candidates: other parts, each turned alone, ranked by coverage
+        ratios = [m[1] for _, m in found]
+        assert ratios == sorted(ratios) and len({m[0] for _, m in found}) == len(found)
+        for other, (i, _) in found[1:]:
+            part = np.isin(graph.labels, parts[i])
+            assert np.array_equal(other[~part], src.vertices[~part])
+        # n_best=1 is the first of them
+        (one, m1), = turn_limb(src, tgt, src.vertices, graph, parts, samples)
+        assert m1 == move and np.array_equal(one, moved)
     # a registration already in place: no turn counts
-    same, move = turn_limb(src, src, src.vertices, graph, parts, samples)
-    assert move is None and np.array_equal(same, src.vertices)
+    assert turn_limb(src, src, src.vertices, graph, parts, samples, n_best=3) == []
 
 
 def test_deform_reports_the_limb_rounds(builtin):
@@ -388,6 +401,7 @@ def test_deform_reports_the_limb_rounds(builtin):
     for r in rounds:
         assert 0 < r["coverage_ratio"] < 1 - 0.005
         assert r["kept"] == (r["score_after"] < r["score"])
+        assert r["part"] in r["tried"] and 1 <= len(r["tried"]) <= 3
     kept = [r for r in rounds if r["kept"]]
     assert all(a["score_after"] == b["score"] for a, b in pairwise(kept))  # each round starts where the last ended
     assert make_matcher("deform", limb_rounds=0, **kw).match(source.mesh, target.mesh).info["limbs"] == []

@@ -30,10 +30,10 @@
 5. **Limbs.** A limb left in the wrong place (an arm lying on a leg of a folded
    figure) fits locally, so the closest-point iterations keep it there. The source's
    limbs and their outer halves (:func:`source_limbs`) are each turned about their root
-   through a fixed set of rotations; the turn that best covers what the target has
-   left uncovered is applied (:func:`turn_limb`), the coarse registration continues
-   from there, and the move is kept if the residual plus distortion drops; up to three
-   such rounds.
+   through a fixed set of rotations; the three parts whose best turns best cover what
+   the target has left uncovered are each turned (:func:`turn_limb`), the coarse
+   registration continues from each, and the best of them is kept if the residual plus
+   distortion drops; up to three such rounds.
 6. **Refinement.** It is registered again on a finer graph with point-to-plane closest
    points on all vertices, and every target vertex takes the nearest deformed source
    vertex with a compatible normal.
@@ -502,9 +502,10 @@ def turn_limb(
     angles: tuple[float, ...] = (60.0, 120.0, 180.0),
     n_axes: int = 26,
     min_gain: float = 0.005,
+    n_best: int = 1,
     n_threads: int = 1,
-) -> tuple[FloatArray, tuple[int, float] | None]:
-    """The one turn of one limb that best covers the target, applied to a registered source.
+) -> list[tuple[FloatArray, tuple[int, float]]]:
+    """The turns of limbs that best cover the target, each applied to a registered source.
 
     Each part (vertices of the given graph nodes' cells) is turned rigidly about its
     root (the centroid of its vertices on edges leaving it) by every rotation of
@@ -516,7 +517,9 @@ def turn_limb(
     part (doubling it) costs nothing where it is, so the two-sided fit would keep it
     there; moved to where the target has a limb left uncovered, it lowers the coverage
     distance. Parts with fewer than 16 source samples (or leaving fewer than 16 for the
-    rest) are skipped.
+    rest) are skipped. Each part's best turn that lowers the coverage distance by
+    ``min_gain`` is a candidate; the ``n_best`` best candidates (different parts) are
+    returned, best first.
 
     Parameters
     ----------
@@ -534,16 +537,18 @@ def turn_limb(
     n_axes : int
     min_gain : float
         Smallest relative drop of the coverage distance for a turn to count.
+    n_best : int
+        Most candidates returned.
     n_threads : int
         Threads searching the parts (the result does not depend on it).
 
     Returns
     -------
-    moved : ndarray, shape (n_source, 3)
-        ``deformed`` with the best turn applied (a copy; unchanged if none counts).
-    move : (int, float) or None
-        Index of the turned part and the coverage distance after / before; ``None`` if
-        no turn lowers it by ``min_gain``.
+    list of (moved, (part, ratio))
+        ``moved`` (ndarray, shape (n_source, 3)): a copy of ``deformed`` with one part
+        turned; ``part``: its index in ``parts``; ``ratio``: the coverage distance
+        after / before. Best (lowest ratio) first; empty if no turn lowers the coverage
+        distance by ``min_gain``.
     """
     s1, s2 = (np.asarray(x, dtype=np.int64) for x in samples)
     W, Nw = target.vertices[s2], target.vertex_normals[s2]
@@ -585,15 +590,14 @@ def turn_limb(
         return costs[1 + k] / costs[0], limb, root, rotations[k]
 
     found = _thread_map(search, parts, n_threads)
-    best: tuple[float, int, BoolArray, FloatArray, FloatArray] | None = None
-    for i, f in enumerate(found):
-        if f is not None and f[0] < 1.0 - min_gain and (best is None or f[0] < best[0]):
-            best = (f[0], i, *f[1:])
-    if best is None:
-        return cur, None
-    ratio, i, limb, root, R = best
-    cur[limb] = (cur[limb] - root) @ R.T + root
-    return cur, (i, ratio)
+    ranked = sorted((f[0], i) for i, f in enumerate(found) if f is not None and f[0] < 1.0 - min_gain)
+    out = []
+    for ratio, i in ranked[:n_best]:
+        _, limb, root, R = found[i]  # type: ignore[misc]
+        moved = cur.copy()
+        moved[limb] = (moved[limb] - root) @ R.T + root
+        out.append((moved, (i, ratio)))
+    return out
 
 
 def swap_regions(
@@ -764,15 +768,20 @@ class DeformMatcher(Matcher):
         one is refined.
     limb_rounds : int
         Rounds of limb turns after the choice (:func:`turn_limb` on the parts from
-        :func:`source_limbs`): each round applies the turn that best covers the target,
-        continues the coarse registration from there (``continue_icp_iterations``) and
-        keeps it if ``residual + distortion_weight * distortion`` drops; the rounds stop
-        at the first turn not kept. ``0`` (or ``continue_icp_iterations=0``) skips them.
-        On the training pairs: 4.47 -> 3.97 (mean geodesic error x100, Dijkstra,
-        pooled; kid13 10.22 -> 7.35, kid14 13.64 -> 10.98, kid06 7.29 -> 5.80, no pair
-        worse); built-in pairs 2.16 -> 1.75 (see ``docs/flagship.md``).
+        :func:`source_limbs`): each round takes the ``limb_candidates`` turns (of
+        different parts) that best cover the target, continues the coarse registration
+        from each (``continue_icp_iterations``) and keeps the best of them if
+        ``residual + distortion_weight * distortion`` drops; the rounds stop at the
+        first round nothing is kept. ``0`` (or ``continue_icp_iterations=0``) skips
+        them. On the training pairs (one candidate): 4.47 -> 3.97 (mean geodesic error
+        x100, Dijkstra, pooled; kid13 10.22 -> 7.35, kid14 13.64 -> 10.98, kid06 7.29 ->
+        5.80, no pair worse); built-in pairs 2.16 -> 1.75 (see ``docs/flagship.md``).
     limb_min_gain : float
         Smallest relative drop of the coverage distance for a turn to be tried.
+    limb_candidates : int
+        Turns continued per round (the best-covering turn of each of that many parts;
+        the continuations run on the thread pool). On the training pairs: 1: 3.97, 3:
+        3.78 (kid06 5.80 -> 3.51, kid15 18.65 -> 18.09, no pair worse), 5: 3.81.
     distortion_weight : float
         Weight of the graph distortion (mean link stretch over mean link length) in
         that choice. A registration that fits the target only by bending the source
@@ -844,6 +853,7 @@ class DeformMatcher(Matcher):
         bend_angles: tuple[float, ...] = (60.0, 90.0, 120.0),
         limb_rounds: int = 3,
         limb_min_gain: float = 0.005,
+        limb_candidates: int = 3,
         n_threads: int | None = None,
     ) -> None:
         self.hypotheses = hypotheses
@@ -869,6 +879,7 @@ class DeformMatcher(Matcher):
         self.bend_angles = bend_angles
         self.limb_rounds = limb_rounds
         self.limb_min_gain = limb_min_gain
+        self.limb_candidates = limb_candidates
         self.n_threads = n_threads
 
     def _check(self) -> list[tuple[str, int, bool]]:
@@ -897,6 +908,8 @@ class DeformMatcher(Matcher):
             raise ValueError(f"limb_rounds must be an integer >= 0, got {self.limb_rounds!r}")
         if not isinstance(self.limb_min_gain, (int, float, np.integer, np.floating)) or not 0 <= self.limb_min_gain < 1:
             raise ValueError(f"limb_min_gain must be a number in [0, 1), got {self.limb_min_gain!r}")
+        if not isinstance(self.limb_candidates, (int, np.integer)) or self.limb_candidates < 1:
+            raise ValueError(f"limb_candidates must be an integer >= 1, got {self.limb_candidates!r}")
         if not isinstance(self.continue_icp_iterations, (int, np.integer)) or self.continue_icp_iterations < 0:
             raise ValueError(f"continue_icp_iterations must be an integer >= 0, got {self.continue_icp_iterations!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices"):
@@ -1096,16 +1109,23 @@ class DeformMatcher(Matcher):
         parts = source_limbs(graph) if self.limb_rounds > 0 else []
         for _ in range(self.limb_rounds):
             t0 = time.perf_counter()
-            moved, move = turn_limb(
-                source, target, np.asarray(starts[i_best]), graph, parts, samples, min_gain=self.limb_min_gain, n_threads=self._n_threads()
+            cands = turn_limb(
+                source, target, np.asarray(starts[i_best]), graph, parts, samples,
+                min_gain=self.limb_min_gain, n_best=self.limb_candidates, n_threads=self._n_threads(),
             )
             t_turn = time.perf_counter() - t0
-            if move is None:
+            if not cands:
                 break
-            r = register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=moved, samples=samples)
-            new = r.residual + self.distortion_weight * r.distortion
+            runs = self._map(
+                lambda c: register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=c[0], samples=samples),
+                cands,
+            )
+            scores = [r.residual + self.distortion_weight * r.distortion for r in runs]
+            k = int(np.argmin(scores))  # the first of equals: the better coverage
+            r, new, move = runs[k], scores[k], cands[k][1]
             kept = bool(new < score)
             rounds.append({"part": move[0], "coverage_ratio": move[1], "score": float(score), "score_after": float(new), "kept": kept,
+                           "tried": [c[1][0] for c in cands],
                            "seconds": (t_turn, time.perf_counter() - t0 - t_turn)})
             logger.debug("limb part %d turned: coverage x%.3f, score %.5f -> %.5f (%s)", move[0], move[1], score, new, "kept" if kept else "dropped")
             if not kept:
