@@ -117,3 +117,27 @@ def test_pair_selection_runs_exactly_the_named_pairs(tmp_path):
         run_benchmark(BenchmarkConfig(methods=["oracle"], protocols=["topkids25"], pairs=["nosuch-kid00"]), tmp_path / "q", progress=False)
     with pytest.raises(ValueError, match="target"):
         BenchmarkConfig(pairs=["justonename"]).validate()
+
+
+class CountsPairs(Matcher):
+    """Reports how many pairs this object has matched (work shared across pairs)."""
+
+    name = "counter"
+    shares_work = True
+
+    def __init__(self) -> None:
+        self.seen_: list[str] = []
+
+    def match(self, source, target):
+        self.seen_.append(f"{target.name}-{source.name}")
+        return Correspondence(np.zeros(target.n_vertices, dtype=np.int64), info={"seen": len(self.seen_)})
+
+
+def test_matchers_that_share_work_run_in_one_process(tmp_path, monkeypatch):
+    monkeypatch.setitem(MATCHERS, "counter", CountsPairs)
+    cfg = BenchmarkConfig(methods=["counter"], protocols=["shrec16"], jobs=2, max_pairs=4)
+    run_benchmark(cfg, tmp_path / "run", progress=False)
+    run = RunDir(tmp_path / "run")
+    seen = sorted(json.loads(str(np.load(p)["info"]))["seen"] for p in (tmp_path / "run" / "maps" / "counter").glob("*.npz"))
+    assert seen == [1, 2, 3, 4]  # one object saw every pair (worker processes would each see one)
+    assert run.path.exists()

@@ -350,7 +350,9 @@ def run_benchmark(
         manifest["methods"][method]["fit_seconds"] = fit_seconds[method]
         say(f"{method}: matching {len(todo)} pair(s)" + (f" (fit {fit_seconds[method]:.1f} s)" if matcher.requires_fit else ""))
         bar = _progress(len(todo), method, progress)
-        if config.jobs > 1 and len(todo) > 1:
+        if config.jobs > 1 and len(todo) > 1 and matcher.shares_work:
+            say(f"{method}: pairs run in this process (the matcher reuses work across pairs)")
+        if config.jobs > 1 and len(todo) > 1 and not matcher.shares_work:
             from joblib import Parallel, delayed
 
             gen = Parallel(n_jobs=config.jobs, return_as="generator")(

@@ -70,6 +70,9 @@ class Matcher:
     uses_ground_truth: ClassVar[bool] = False
     #: How reports describe that use, e.g. "uses 4 ground-truth landmarks".
     ground_truth_note: ClassVar[str] = "uses ground truth"
+    #: True when one matcher object reuses work across pairs (``template`` keeps each
+    #: shape's registration); ``topomatch bench`` then runs its pairs in one process.
+    shares_work: ClassVar[bool] = False
 
     def fit(self, shapes: Sequence[Shape] = (), /) -> Matcher:
         """Learn from training shapes with ground truth; axiomatic matchers do nothing.

@@ -9,7 +9,8 @@ and composes the two: a target vertex goes to the template vertex the target's
 registration gives it, and that template vertex to the source vertex nearest to
 where the template's registration onto the source put it. Each shape is registered
 once per template, so a collection of ``n`` shapes needs ``n`` registrations for its
-``n (n - 1)`` pairs (kept in memory by the matcher object).
+``n (n - 1)`` pairs (kept in memory by the matcher object; ``topomatch bench`` runs
+this method's pairs in one process for that reason, whatever ``--jobs`` is).
 
 The template is a prior, not ground truth: only its mesh is used. ``fit`` takes the
 collection's null shape when no ``model`` file is given; reports should say that
@@ -86,6 +87,7 @@ class TemplateMatcher(Matcher):
 
     name = "template"
     requires_fit = True
+    shares_work = True
     #: What ``topomatch match`` says when no template is given.
     model_hint: ClassVar[str] = (
         "template needs a template mesh: --param template.model=PATH (a clean shape of the same class, e.g. TOPKIDS' kid00.off)"
