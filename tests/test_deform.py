@@ -390,6 +390,8 @@ def test_turn_limb_puts_a_turned_limb_back(builtin):
         assert m1 == move and np.array_equal(one, moved)
     # a registration already in place: no turn counts
     assert turn_limb(src, src, src.vertices, graph, parts, samples, n_best=3) == []
+    with pytest.raises(ValueError, match="n_best"):
+        turn_limb(src, src, src.vertices, graph, parts, samples, n_best=0)
 
 
 def test_deform_reports_the_limb_rounds(builtin):

@@ -550,6 +550,8 @@ def turn_limb(
         after / before. Best (lowest ratio) first; empty if no turn lowers the coverage
         distance by ``min_gain``.
     """
+    if not isinstance(n_best, (int, np.integer)) or n_best < 1:
+        raise ValueError(f"turn_limb: n_best must be an integer >= 1, got {n_best!r}")
     s1, s2 = (np.asarray(x, dtype=np.int64) for x in samples)
     W, Nw = target.vertices[s2], target.vertex_normals[s2]
     cap = 0.05 * float(np.sqrt(source.area))

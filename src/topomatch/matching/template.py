@@ -83,6 +83,8 @@ class TemplateMatcher(Matcher):
     are exactly :class:`DeformMatcher`'s. Registrations are kept per shape (keyed by
     content), so matching every pair of a collection in one process costs one
     registration per shape; ``info["registrations"]`` says which were computed.
+    The kept registrations cost 24 bytes per template vertex per shape (0.3 MB for a
+    12K-vertex template, 1.4 MB at 60K); a new ``fit`` forgets them.
     """
 
     name = "template"
