@@ -28,6 +28,7 @@ import argparse
 import gc
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -79,6 +80,8 @@ def main() -> None:
     args = ap.parse_args()
     if not args.data:
         ap.error("give --data or set TOPOMATCH_DATA")
+    if os.environ.pop("TOPOMATCH_CACHE_DIR", None):
+        print("TOPOMATCH_CACHE_DIR ignored: every method computes its eigenbases", file=sys.stderr)
 
     coll = load_topkids(args.data, args.resolution)
     prot = get_protocol(args.protocol)
