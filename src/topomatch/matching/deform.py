@@ -30,10 +30,10 @@
 5. **Limbs.** A limb left in the wrong place (an arm lying on a leg of a folded
    figure) fits locally, so the closest-point iterations keep it there. The source's
    limbs and their outer halves (:func:`source_limbs`) are each turned about their root
-   through a fixed set of rotations; the three parts whose best turns best cover what
+   through a fixed set of rotations; the two parts whose best turns best cover what
    the target has left uncovered are each turned (:func:`turn_limb`), the coarse
-   registration continues from each, and the best of them is kept if the residual plus
-   distortion drops; up to three such rounds.
+   registration continues from each, and the better of them is kept if the residual
+   plus distortion drops; up to three such rounds.
 6. **Refinement.** It is registered again on a finer graph with point-to-plane closest
    points on all vertices, and every target vertex takes the nearest deformed source
    vertex with a compatible normal.
@@ -782,8 +782,10 @@ class DeformMatcher(Matcher):
         Smallest relative drop of the coverage distance for a turn to be tried.
     limb_candidates : int
         Turns continued per round (the best-covering turn of each of that many parts;
-        the continuations run on the thread pool). On the training pairs: 1: 3.97, 3:
-        3.78 (kid06 5.80 -> 3.51, kid15 18.65 -> 18.09, no pair worse), 5: 3.81.
+        the continuations run on the thread pool, so two cost about one on two cores).
+        On the training pairs: 1: 3.97, 2: 3.81 (kid06 5.80 -> 3.51, no pair worse), 3:
+        3.78 (also kid15 18.65 -> 18.09, but 11.3 s instead of 9.8 s median per pair),
+        5: 3.81.
     distortion_weight : float
         Weight of the graph distortion (mean link stretch over mean link length) in
         that choice. A registration that fits the target only by bending the source
@@ -855,7 +857,7 @@ class DeformMatcher(Matcher):
         bend_angles: tuple[float, ...] = (60.0, 90.0, 120.0),
         limb_rounds: int = 3,
         limb_min_gain: float = 0.005,
-        limb_candidates: int = 3,
+        limb_candidates: int = 2,
         n_threads: int | None = None,
     ) -> None:
         self.hypotheses = hypotheses
