@@ -260,7 +260,7 @@ def cmd_match(args: argparse.Namespace) -> int:
         if "random_state" in matcher.get_params() and "random_state" not in params:
             matcher.set_params(random_state=args.seed)
         if matcher.requires_fit and not getattr(matcher, "model", None):
-            hint = getattr(matcher, "model_hint", "") or f"{args.method} needs training; use 'topomatch bench', or 'topomatch fit {args.method} --out MODEL' and --param model=MODEL"
+            hint = matcher.model_hint or f"{args.method} needs training; use 'topomatch bench', or 'topomatch fit {args.method} --out MODEL' and --param model=MODEL"
             raise ValueError(hint)
         if matcher.requires_fit:
             matcher.fit([])  # loads the model file given as --param model=...

@@ -73,6 +73,9 @@ class Matcher:
     #: True when one matcher object reuses work across pairs (``template`` keeps each
     #: shape's registration); ``topomatch bench`` then runs its pairs in one process.
     shares_work: ClassVar[bool] = False
+    #: What ``topomatch match`` says when a method that needs ``fit`` gets no ``model``
+    #: (empty: the generic advice to train one).
+    model_hint: ClassVar[str] = ""
 
     def fit(self, shapes: Sequence[Shape] = (), /) -> Matcher:
         """Learn from training shapes with ground truth; axiomatic matchers do nothing.

@@ -19,11 +19,10 @@ the row uses a template.
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -34,8 +33,6 @@ from topomatch.matching.base import Correspondence, Matcher, NotFittedError
 from topomatch.matching.deform import DeformMatcher, map_from_deformed
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
-
-logger = logging.getLogger(__name__)
 
 __all__ = ["TemplateMatcher", "compose_through_template"]
 
@@ -90,8 +87,7 @@ class TemplateMatcher(Matcher):
     name = "template"
     requires_fit = True
     shares_work = True
-    #: What ``topomatch match`` says when no template is given.
-    model_hint: ClassVar[str] = (
+    model_hint = (
         "template needs a template mesh: --param template.model=PATH (a clean shape of the same class, e.g. TOPKIDS' kid00.off)"
     )
 
