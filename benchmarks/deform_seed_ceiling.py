@@ -37,11 +37,8 @@ from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, register
 from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps
-from topomatch.matching.deform import DeformMatcher, map_from_deformed
+from topomatch.matching.deform import FINE_SIGMA, DeformMatcher, map_from_deformed
 from topomatch.mesh.sampling import farthest_point_sampling
-
-FINE_SIGMA = (0.03, 0.01)
-"""Robust scale of ``deform``'s fine registration (``DeformMatcher._refine``)."""
 
 
 def main() -> None:
@@ -92,7 +89,7 @@ def main() -> None:
         for stage, r in (("seed-fit", fit), ("seed-coarse", r_coarse), ("seed-fine", r_fine)):
             maps[(stage, pair)] = map_from_deformed(tgt, r.deformed, F)
             info[(stage, pair)] = {"score": r.residual + m.distortion_weight * r.distortion, "residual": r.residual,
-                                   "distortion": r.distortion, "seconds": seconds}
+                                   "distortion": r.distortion, "seconds_three_stages": seconds}
         if args.deform:
             t0 = time.perf_counter()
             c = m.match(src, tgt)

@@ -467,6 +467,10 @@ def source_limbs(graph: DeformationGraph, *, min_nodes: int = 3) -> list[IndexAr
     return limbs + [nodes for nodes in outer if len(nodes) >= min_nodes]
 
 
+FINE_SIGMA = (0.03, 0.01)
+"""Robust scale (start, end; units of sqrt(source area)) of the final registration's
+closest-point weights (``benchmarks/deform_seed_ceiling.py`` reuses it)."""
+
 _LIMB_REACH = 0.2
 """Target samples nearer than this (times the cap, 0.05 x sqrt(source area)) to the rest of
 the source count as covered whatever a limb does, so they need no search (about a third
@@ -1064,7 +1068,7 @@ class DeformMatcher(Matcher):
         fine_graph = build_deformation_graph(source.vertices, source.faces, min(self.fine_nodes, source.n_vertices))
         fine = RegistrationSchedule(
             n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.fine_icp_iterations, alpha_icp=tuple(self.fine_alpha),
-            sigma_icp=(0.03, 0.01),
+            sigma_icp=FINE_SIGMA,
         )
         starts: dict[int, GraphDeformation | FloatArray] = {int(i): results[i].deformation for i in order[: self.n_continue]}
         swaps: list[tuple[str, int]] = []
