@@ -199,6 +199,9 @@ def test_deform_matcher_rejects_bad_parameters(pair):
     for n in (0, 1.5):
         with pytest.raises(ValueError, match="limb_candidates"):
             make_matcher("deform", limb_candidates=n).match(src, tgt)
+    for judge in ("Fine", "", None):
+        with pytest.raises(ValueError, match="limb_judge"):
+            make_matcher("deform", limb_judge=judge).match(src, tgt)
 
 
 def test_deform_chooses_by_fit_and_distortion_after_continuing(pair):
@@ -401,3 +404,19 @@ def test_deform_reports_the_limb_rounds(builtin):
     kept = [r for r in rounds if r["kept"]]
     assert all(a["score_after"] == b["score"] for a, b in pairwise(kept))  # each round starts where the last ended
     assert make_matcher("deform", limb_rounds=0, **kw).match(source.mesh, target.mesh).info["limbs"] == []
+
+
+def test_limb_turns_judged_at_the_fine_level(builtin):
+    target, source = builtin["syn05"], builtin["syn00"]
+    kw = {"n_samples": 800, "coarse_nodes": 100, "fine_nodes": 200}
+    coarse = make_matcher("deform", **kw).match(source.mesh, target.mesh).info["limbs"]
+    fine = make_matcher("deform", limb_judge="fine", **kw).match(source.mesh, target.mesh).info["limbs"]
+    assert coarse and fine  # this pair has limb candidates
+    # same search, another judge: the first round tries the same turns
+    assert fine[0]["tried"] == coarse[0]["tried"] and fine[0]["coverage_ratio"] == coarse[0]["coverage_ratio"]
+    assert all("fine_score" not in r for r in coarse)
+    for r in fine:
+        assert r["kept"] == (r["fine_score_after"] < r["fine_score"])
+    kept = [r for r in fine if r["kept"]]
+    assert all(a["fine_score_after"] == b["fine_score"] for a, b in pairwise(kept))
+
