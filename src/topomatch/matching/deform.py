@@ -1110,10 +1110,11 @@ class DeformMatcher(Matcher):
             for i, r in zip(ids, runs):
                 starts[i] = r.deformed
                 continued[hyps[i].label] = (float(r.residual), float(r.distortion))
-            limbs = self._turn_limbs(source, target, starts, i_best, scores[k_best], graph, samples, cont, (fine_graph, fine))
+            limbs, r_best = self._turn_limbs(source, target, starts, i_best, scores[k_best], graph, samples, cont, (fine_graph, fine))
         else:
-            limbs = []
-        r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best])
+            limbs, r_best = [], None
+        if r_best is None:
+            r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best])
         return i_best, r_best, swaps, continued, limbs
 
     def _turn_limbs(
@@ -1127,16 +1128,23 @@ class DeformMatcher(Matcher):
         samples: tuple[IndexArray, IndexArray],
         cont: RegistrationSchedule,
         fine: tuple[DeformationGraph, RegistrationSchedule],
-    ) -> list[dict]:
-        """Step 5: rounds of limb turns on the chosen continued registration (updates ``starts[i_best]``)."""
+    ) -> tuple[list[dict], RegistrationResult | None]:
+        """Step 5: rounds of limb turns on the chosen continued registration (updates ``starts[i_best]``).
+
+        Returns the rounds and, when ``limb_judge="fine"`` judged at least one round, the
+        fine registration of the final state (the final step's registration, already
+        computed for the judging).
+        """
         rounds: list[dict] = []
         fine_graph, fine_schedule = fine
 
-        def fine_score(X: FloatArray) -> float:
-            r = register(source.vertices, source.faces, target.vertices, target.faces, None, fine_schedule, graph=fine_graph, start=X)
+        def fine_registration(X: FloatArray) -> RegistrationResult:
+            return register(source.vertices, source.faces, target.vertices, target.faces, None, fine_schedule, graph=fine_graph, start=X)
+
+        def fine_score(r: RegistrationResult) -> float:
             return float(r.residual + self.distortion_weight * r.distortion)
 
-        fine_now: float | None = None
+        fine_now: RegistrationResult | None = None  # the fine registration of starts[i_best]
         parts = source_limbs(graph) if self.limb_rounds > 0 else []
         for _ in range(self.limb_rounds):
             t0 = time.perf_counter()
@@ -1155,13 +1163,14 @@ class DeformMatcher(Matcher):
             judged: dict[str, float] = {}
             if self.limb_judge == "fine":
                 if fine_now is None:
-                    fine_now = fine_score(np.asarray(starts[i_best]))
-                fines = _thread_map(fine_score, [r.deformed for r in runs], self._n_threads())
+                    fine_now = fine_registration(np.asarray(starts[i_best]))
+                fine_runs = self._map(fine_registration, [r.deformed for r in runs])
+                fines = [fine_score(f) for f in fine_runs]
                 k = int(np.argmin(fines))  # the first of equals: the better coverage
-                kept = bool(fines[k] < fine_now)
-                judged = {"fine_score": fine_now, "fine_score_after": fines[k]}
+                kept = bool(fines[k] < fine_score(fine_now))
+                judged = {"fine_score": fine_score(fine_now), "fine_score_after": fines[k]}
                 if kept:
-                    fine_now = fines[k]
+                    fine_now = fine_runs[k]
             else:
                 k = int(np.argmin(scores))  # the first of equals: the better coverage
                 kept = bool(scores[k] < score)
@@ -1173,7 +1182,7 @@ class DeformMatcher(Matcher):
             if not kept:
                 break
             starts[i_best], score = r.deformed, new
-        return rounds
+        return rounds, fine_now
 
     def register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
         """Deform the source onto the target (the registration behind :meth:`match`).
