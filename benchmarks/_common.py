@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+
+from topomatch.datasets.base import ShapeCollection
+from topomatch.datasets.topkids import load_topkids
+from topomatch.evaluation.protocols import Protocol, get_protocol
+from topomatch.mesh import TriangleMesh
 
 
 def emit_row(row: dict, path: str | None) -> None:
@@ -12,3 +19,25 @@ def emit_row(row: dict, path: str | None) -> None:
     if path:
         with open(path, "a") as fh:
             fh.write(line + "\n")
+
+
+def topkids_targets_parser(description: str, json_help: str) -> argparse.ArgumentParser:
+    """Arguments of the scripts that match kid00 onto given TOPKIDS targets.
+
+    ``targets``, ``--data`` (default ``$TOPOMATCH_DATA``), ``--geodesic`` and ``--json``;
+    a script adds its own.
+    """
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("targets", nargs="+", help="target shapes, e.g. kid01 kid02")
+    ap.add_argument("--data", default=os.environ.get("TOPOMATCH_DATA"))
+    ap.add_argument("--geodesic", default="dijkstra", choices=["dijkstra", "heat", "exact"])
+    ap.add_argument("--json", default=None, help=json_help)
+    return ap
+
+
+def load_topkids25(ap: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[ShapeCollection, Protocol, str, TriangleMesh]:
+    """The low-res TOPKIDS collection, the ``topkids25`` protocol, the reference's name and mesh."""
+    if not args.data:
+        ap.error("give --data or set TOPOMATCH_DATA")
+    coll = load_topkids(args.data, "low")
+    return coll, get_protocol("topkids25"), coll.reference, coll[coll.reference].mesh

@@ -12,34 +12,21 @@ plus a shift of one shape diameter). Geodesic errors are scored on the original 
 
 from __future__ import annotations
 
-import argparse
-import os
 import time
 
 import numpy as np
-from _common import emit_row
+from _common import emit_row, load_topkids25, topkids_targets_parser
 from scipy.spatial.transform import Rotation
 
-from topomatch.datasets.topkids import load_topkids
-from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps
 from topomatch.matching import make_matcher
 from topomatch.mesh import TriangleMesh
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("targets", nargs="+", help="target shapes, e.g. kid01 kid02")
-    ap.add_argument("--data", default=os.environ.get("TOPOMATCH_DATA"))
-    ap.add_argument("--geodesic", default="dijkstra", choices=["dijkstra", "heat", "exact"])
-    ap.add_argument("--json", default=None, help="append one JSON line per pair and variant")
+    ap = topkids_targets_parser(__doc__.split("\n")[0], "append one JSON line per pair and variant")
     args = ap.parse_args()
-    if not args.data:
-        ap.error("give --data or set TOPOMATCH_DATA")
-    coll = load_topkids(args.data, "low")
-    prot = get_protocol("topkids25")
-    ref = coll.reference
-    src = coll[ref].mesh
+    coll, prot, ref, src = load_topkids25(ap, args)
     m = make_matcher("deform")
     maps, info = {}, {}
     for i, t in enumerate(args.targets):

@@ -23,40 +23,27 @@ a diagnostic, never a matcher. Training pairs only.
 
 from __future__ import annotations
 
-import argparse
-import os
 import time
 from dataclasses import replace
 
 import numpy as np
-from _common import emit_row
+from _common import emit_row, load_topkids25, topkids_targets_parser
 from threadpoolctl import threadpool_limits
 
-from topomatch.datasets.topkids import load_topkids
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, register
-from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps
 from topomatch.matching.deform import FINE_SIGMA, DeformMatcher, map_from_deformed
 from topomatch.mesh.sampling import farthest_point_sampling
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("targets", nargs="+", help="target shapes, e.g. kid01 kid02")
-    ap.add_argument("--data", default=os.environ.get("TOPOMATCH_DATA"))
-    ap.add_argument("--geodesic", default="dijkstra", choices=["dijkstra", "heat", "exact"])
+    ap = topkids_targets_parser(__doc__.split("\n")[0], "append one JSON line per pair and stage")
     ap.add_argument("--mu-point", type=float, default=RegistrationSchedule.mu_point,
                     help="weight of the point-to-point term in the closest-point iterations (point-to-plane: 1)")
     ap.add_argument("--deform", action="store_true", help="also run the matcher itself")
-    ap.add_argument("--json", default=None, help="append one JSON line per pair and stage")
     args = ap.parse_args()
-    if not args.data:
-        ap.error("give --data or set TOPOMATCH_DATA")
-    coll = load_topkids(args.data, "low")
-    prot = get_protocol("topkids25")
-    ref = coll.reference
-    src = coll[ref].mesh
+    coll, prot, ref, src = load_topkids25(ap, args)
     m = DeformMatcher()
     V, F = src.vertices, src.faces
     s1 = farthest_point_sampling(min(m.n_samples, src.n_vertices), points=V, first=0)
