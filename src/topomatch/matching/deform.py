@@ -1146,6 +1146,12 @@ class DeformMatcher(Matcher):
 
         fine_now: RegistrationResult | None = None  # the fine registration of starts[i_best]
         parts = source_limbs(graph) if self.limb_rounds > 0 else []
+        by_fine = self.limb_judge == "fine"
+
+        def continued(c: tuple[FloatArray, Any]) -> tuple[RegistrationResult, RegistrationResult | None]:
+            r = register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=c[0], samples=samples)
+            return r, (fine_registration(r.deformed) if by_fine else None)
+
         for _ in range(self.limb_rounds):
             t0 = time.perf_counter()
             cands = turn_limb(
@@ -1155,16 +1161,20 @@ class DeformMatcher(Matcher):
             t_turn = time.perf_counter() - t0
             if not cands:
                 break
-            runs = self._map(
-                lambda c: register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=c[0], samples=samples),
-                cands,
+            # one job per candidate (continued, then fine-registered when judged fine) and,
+            # the first time, the fine registration of the current state, side by side
+            now = [(np.asarray(starts[i_best]), None)] if by_fine and fine_now is None else []
+            done = _thread_map(
+                lambda job: (fine_registration(job[0]), None) if job[1] is None else continued(job),
+                now + cands, self._n_threads(),
             )
+            if now:
+                fine_now = done.pop(0)[0]
+            runs = [r for r, _ in done]
             scores = [r.residual + self.distortion_weight * r.distortion for r in runs]
             judged: dict[str, float] = {}
-            if self.limb_judge == "fine":
-                if fine_now is None:
-                    fine_now = fine_registration(np.asarray(starts[i_best]))
-                fine_runs = self._map(fine_registration, [r.deformed for r in runs])
+            if by_fine and fine_now is not None:
+                fine_runs = [f for _, f in done]
                 fines = [fine_score(f) for f in fine_runs]
                 k = int(np.argmin(fines))  # the first of equals: the better coverage
                 kept = bool(fines[k] < fine_score(fine_now))
