@@ -99,6 +99,10 @@ def test_registration_from_start_positions(pair):
     off = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, start=exact + 0.5 * np.sqrt(src.area))
     assert r.residual < 0.01 < off.residual
     assert np.linalg.norm(r.deformed - exact, axis=1).mean() < 0.04 * np.sqrt(src.area)  # tangential sliding ~0.02
+    # the two search directions side by side give the same registration
+    both = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, start=off.deformed, n_threads=2)
+    one = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, start=off.deformed)
+    assert np.array_equal(both.deformed, one.deformed) and both.residual == one.residual
 
 
 def _blob(center: np.ndarray, x: np.ndarray) -> np.ndarray:

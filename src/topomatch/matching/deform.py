@@ -1114,7 +1114,7 @@ class DeformMatcher(Matcher):
         else:
             limbs, r_best = [], None
         if r_best is None:
-            r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best])
+            r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best], n_threads=self._n_threads())
         return i_best, r_best, swaps, continued, limbs
 
     def _turn_limbs(
