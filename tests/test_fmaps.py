@@ -71,6 +71,18 @@ def test_solve_fmap_is_the_minimiser_of_the_energy():
     assert np.abs(g).max() < 1e-5 * max(1.0, e0)
 
 
+def test_commutativity_terms_added_in_place_equal_the_hessian():
+    from topomatch.maps.fmap import _add_commutativity, _commutativity_hessian, _commutativity_trace
+
+    rng = np.random.default_rng(3)
+    X, Y = rng.standard_normal((3, 5, 5)), rng.standard_normal((3, 4, 4))
+    ref = _commutativity_hessian(X, Y)
+    H = np.eye(20)
+    _add_commutativity(H, X, Y, 0.7)
+    np.testing.assert_allclose(H, np.eye(20) + 0.7 * ref, atol=1e-12)
+    assert _commutativity_trace(X, Y) == pytest.approx(np.trace(ref))
+
+
 def test_identical_descriptors_give_identity():
     rng = np.random.default_rng(2)
     A = rng.standard_normal((6, 10))

@@ -174,6 +174,32 @@ def _commutativity_hessian(X: FloatArray, Y: FloatArray) -> FloatArray:
     return H
 
 
+def _commutativity_trace(X: FloatArray, Y: FloatArray) -> float:
+    """Trace of :func:`_commutativity_hessian` without building it."""
+    k1, k2 = X.shape[1], Y.shape[1]
+    cross = float(np.einsum("faa->f", Y) @ np.einsum("faa->f", X))
+    return float(k2 * np.sum(X * X) + k1 * np.sum(Y * Y) - 2.0 * cross)
+
+
+def _add_commutativity(H: FloatArray, X: FloatArray, Y: FloatArray, w: float) -> None:
+    """``H += w * _commutativity_hessian(X, Y)`` in place, without (k1 k2)^2 temporaries.
+
+    ``H`` is C-contiguous, shape (k2 k1, k2 k1), row-major ``vec(C)`` as in the Hessian.
+    """
+    k1, k2 = X.shape[1], Y.shape[1]
+    H4 = H.reshape(k2, k1, k2, k1)  # [a, c, b, d]: row a k1 + c, column b k1 + d
+    XXt = w * np.einsum("fab,fcb->ac", X, X)
+    YtY = w * np.einsum("fba,fbc->ac", Y, Y)
+    for a in range(k2):  # I (x) X X^T
+        H4[a, :, a, :] += XXt
+    for c in range(k1):  # Y^T Y (x) I
+        H4[:, c, :, c] += YtY
+    K = np.tensordot(Y, X, axes=([0], [0]))  # [a, b, c, d] = sum_f Y_f[a, b] X_f[c, d]
+    K *= w
+    H4 -= K.transpose(0, 2, 1, 3)  # sum_f Y_f (x) X_f
+    H4 -= K.transpose(1, 3, 0, 2)  # sum_f Y_f^T (x) X_f^T
+
+
 def solve_fmap(
     A_1: FloatArray,
     A_2: FloatArray,
@@ -218,13 +244,19 @@ def solve_fmap(
         raise ValueError(f"evals_1 / evals_2 must have shapes ({k1},) / ({k2},), got {ev1.shape} / {ev2.shape}")
     n = k1 * k2
 
-    def normalised(H: FloatArray) -> tuple[FloatArray, float]:
-        s = float(np.trace(H)) / n
-        return H, (1.0 / s if s > 0 else 0.0)
+    def inverse_mean_diagonal(trace: float) -> float:
+        s = trace / n
+        return 1.0 / s if s > 0 else 0.0
 
-    # descriptor preservation: Hessian I (x) A1 A1^T, right-hand side A2 A1^T
-    H_d, s_d = normalised(np.kron(np.eye(k2), A_1 @ A_1.T))
-    H = weights.descriptors * s_d * H_d
+    # descriptor preservation: Hessian I (x) A1 A1^T, right-hand side A2 A1^T; every term
+    # is added in place to one (k2 k1)^2 matrix (at k = 50 the temporaries cost more than
+    # the solve)
+    AAt = A_1 @ A_1.T
+    s_d = inverse_mean_diagonal(k2 * float(np.trace(AAt)))
+    H = np.zeros((n, n))
+    H4 = H.reshape(k2, k1, k2, k1)
+    for a in range(k2):
+        H4[a, :, a, :] += (weights.descriptors * s_d) * AAt
     rhs = weights.descriptors * s_d * (A_2 @ A_1.T).ravel()
     if weights.laplacian > 0:
         scale = max(float(np.max(np.abs(ev1), initial=0.0)), float(np.max(np.abs(ev2), initial=0.0)), 1e-300)
@@ -243,8 +275,7 @@ def solve_fmap(
         X, Y = (np.asarray(o, dtype=np.float64) for o in ops)
         if X.ndim != 3 or Y.ndim != 3 or X.shape[1:] != (k1, k1) or Y.shape[1:] != (k2, k2) or len(X) != len(Y):
             raise ValueError(f"{label} must have shapes (f, {k1}, {k1}) and (f, {k2}, {k2}), got {X.shape} and {Y.shape}")
-        Hc, sc = normalised(_commutativity_hessian(X, Y))
-        H += w * sc * Hc
+        _add_commutativity(H, X, Y, w * inverse_mean_diagonal(_commutativity_trace(X, Y)))
     H[np.diag_indices(n)] += 1e-10 * max(float(np.trace(H)) / n, 1e-300)
     c = scipy.linalg.solve(H, rhs, assume_a="pos")
     return c.reshape(k2, k1)
