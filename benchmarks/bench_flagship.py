@@ -18,6 +18,12 @@ Examples
     python benchmarks/bench_flagship.py --data DATA --resolution high --protocol shrec16 --split train --max-pairs 4
     python benchmarks/bench_flagship.py --data DATA --resolution high --max-pairs 2 --geodesic none
     python benchmarks/bench_flagship.py --data DATA --methods deform,zoomout --param deform.fine_icp_iterations=25
+    python benchmarks/bench_flagship.py --data DATA --methods deform,deform@f40 --param deform@f40.fine_icp_iterations=40 --repeat 3
+
+A method written ``name@label`` is our method ``name`` with the parameters given as
+``--param name@label.key=value``: two settings of one method timed side by side in one
+run, with its ratio to ``name`` printed. ``--repeat N`` runs every pair N times (the
+methods' order reversed on every other repetition) and takes each pair's median time.
 
 Timings depend on the machine and its load: quote medians, rerun on a quiet machine.
 """
@@ -77,6 +83,7 @@ def main() -> None:
     ap.add_argument("--geodesic", default=None, help="geodesic kind for scoring (default: the protocol's); 'none': timings only")
     ap.add_argument("--json", default=None, help="write the per-pair figures to this file")
     ap.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE", help="parameter of one of our methods (repeatable)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per pair and method (median time; order alternated)")
     args = ap.parse_args()
     if not args.data:
         ap.error("give --data or set TOPOMATCH_DATA")
@@ -90,32 +97,46 @@ def main() -> None:
         idx = np.unique(np.linspace(0, len(pairs) - 1, args.max_pairs).round().astype(int))
         pairs = [pairs[i] for i in idx]
     methods = [m for m in args.methods.split(",") if m]
+    if len(set(methods)) != len(methods):
+        ap.error("--methods lists a method twice; name a second setting name@label")
+    if args.repeat < 1:
+        ap.error("--repeat must be at least 1")
     params = _parse_params(args.param, [m for m in methods if m != "pyfm-zoomout"])
-    runners = {m: (pyfm_zoomout if m == "pyfm-zoomout" else ours(m, params.get(m))) for m in methods}
+    unknown = sorted(set(params) - set(methods) - {"*"})
+    if unknown:
+        ap.error(f"--param for {', '.join(unknown)}, which --methods does not list")
+    runners = {m: (pyfm_zoomout if m == "pyfm-zoomout" else ours(m.split("@")[0], params.get(m))) for m in methods}
     print(f"{len(pairs)} pairs ({args.protocol}, {args.split}, {args.resolution} res); methods: {', '.join(methods)}")
 
     maps: dict[tuple[str, str], np.ndarray] = {}
     secs: dict[str, list[float]] = {m: [] for m in methods}
     peak: dict[str, list[float]] = {m: [] for m in methods}
     rise: dict[str, list[float]] = {m: [] for m in methods}
+    runs: dict[str, list[list[float]]] = {m: [] for m in methods}
     for pair in pairs:
         src_shape, tgt_shape = coll[pair.source], coll[pair.target]
+        times: dict[str, list[float]] = {m: [] for m in methods}
+        for rep in range(args.repeat):
+            for m in methods if rep % 2 == 0 else methods[::-1]:
+                # fresh meshes: every method computes its own operators
+                src = TriangleMesh(src_shape.mesh.vertices, src_shape.mesh.faces, name=pair.source)
+                tgt = TriangleMesh(tgt_shape.mesh.vertices, tgt_shape.mesh.faces, name=pair.target)
+                gc.collect()
+                before = current_rss_mb()
+                with PeakMemory() as pm:
+                    t0 = time.perf_counter()
+                    p2p = runners[m](src, tgt)
+                    dt = time.perf_counter() - t0
+                maps.setdefault((m, pair.id), p2p)
+                times[m].append(dt)
+                if rep == 0:
+                    peak[m].append(pm.peak_mb)
+                    rise[m].append(pm.peak_mb - before)
+                print(f"  {pair.id:12s} {m:14s} {dt:7.1f} s  peak {pm.peak_mb:7.0f} MB (+{pm.peak_mb - before:.0f})", flush=True)
+                del src, tgt
         for m in methods:
-            # fresh meshes: every method computes its own operators
-            src = TriangleMesh(src_shape.mesh.vertices, src_shape.mesh.faces, name=pair.source)
-            tgt = TriangleMesh(tgt_shape.mesh.vertices, tgt_shape.mesh.faces, name=pair.target)
-            gc.collect()
-            before = current_rss_mb()
-            with PeakMemory() as pm:
-                t0 = time.perf_counter()
-                p2p = runners[m](src, tgt)
-                dt = time.perf_counter() - t0
-            maps[(m, pair.id)] = p2p
-            secs[m].append(dt)
-            peak[m].append(pm.peak_mb)
-            rise[m].append(pm.peak_mb - before)
-            print(f"  {pair.id:12s} {m:14s} {dt:7.1f} s  peak {pm.peak_mb:7.0f} MB (+{pm.peak_mb - before:.0f})", flush=True)
-            del src, tgt
+            secs[m].append(float(np.median(times[m])))
+            runs[m].append(times[m])
 
     geos = [args.geodesic] if args.geodesic else list(prot.geodesics)
     acc: dict[str, dict[str, dict]] = {m: {} for m in methods}
@@ -148,6 +169,10 @@ def main() -> None:
                 row += f"  {s['auc_mean']:19.3f} / {s['auc_worst']:.3f}"
         print(row)
     print()
+    for m in methods:
+        base = m.split("@")[0]
+        if base != m and base in methods and base not in ("zoomout", "pyfm-zoomout"):  # those two: below
+            print(f"{m} / {base}: time x{med(secs[m]) / med(secs[base]):.2f}, peak memory x{max(peak[m]) / max(peak[base]):.2f}")
     for base in ("zoomout", "pyfm-zoomout"):
         if base not in methods:
             continue
@@ -163,6 +188,7 @@ def main() -> None:
             "pairs": [p.id for p in pairs],
             "args": vars(args),
             "seconds": secs,
+            "seconds_runs": runs,
             "peak_mb": peak,
             "rise_mb": rise,
             "accuracy": {m: {k: {kk: vv for kk, vv in v.items() if not isinstance(vv, list)} for k, v in acc[m].items()} for m in methods},
