@@ -798,10 +798,10 @@ class DeformMatcher(Matcher):
         What decides whether a round's best turn is kept. ``"coarse"``: the continued
         coarse registration's ``residual + distortion_weight x distortion`` must drop.
         ``"fine"``: each continued candidate and the current state are also registered
-        on the fine graph (as in the final step) and that score must drop there; on the
-        training pairs 3.65 -> 3.40 (kid13 6.91 -> 3.67), about 1 s more per candidate
-        and round on one thread (``docs/flagship.md``, attempt #43). Not the default
-        until measured on the full benchmark and for time.
+        on the fine graph (as in the final step) and that score must drop there. On the
+        training pairs with 25 final iterations 3.65 -> 3.40 (kid13 6.91 -> 3.67); with
+        the default 40 only 3.54 -> 3.52 (``docs/flagship.md``, attempts #43, #48); about
+        1.3 s more per candidate and round on one thread. Not the default.
     distortion_weight : float
         Weight of the graph distortion (mean link stretch over mean link length) in
         that choice. A registration that fits the target only by bending the source
