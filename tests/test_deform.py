@@ -206,6 +206,9 @@ def test_deform_matcher_rejects_bad_parameters(pair):
     for judge in ("Fine", "", None):
         with pytest.raises(ValueError, match="limb_judge"):
             make_matcher("deform", limb_judge=judge).match(src, tgt)
+    for n in (0, 2.5, "25"):
+        with pytest.raises(ValueError, match="limb_judge_iterations"):
+            make_matcher("deform", limb_judge="fine", limb_judge_iterations=n).match(src, tgt)
 
 
 def test_deform_chooses_by_fit_and_distortion_after_continuing(pair):
@@ -423,4 +426,15 @@ def test_limb_turns_judged_at_the_fine_level(builtin):
         assert r["kept"] == (r["fine_score_after"] < r["fine_score"])
     kept = [r for r in fine if r["kept"]]
     assert all(a["fine_score_after"] == b["fine_score"] for a, b in pairwise(kept))
+    # the judge's iterations: the final registration's number gives the same map (its
+    # registration reused); another number judges with other registrations
+    ref = make_matcher("deform", limb_judge="fine", **kw).match(source.mesh, target.mesh)
+    same = make_matcher("deform", limb_judge="fine", limb_judge_iterations=40, **kw).match(source.mesh, target.mesh)
+    def untimed(rounds: list[dict]) -> list[dict]:
+        return [{k: v for k, v in r.items() if k != "seconds"} for r in rounds]
+
+    assert np.array_equal(same.p2p_21, ref.p2p_21) and untimed(same.info["limbs"]) == untimed(ref.info["limbs"])
+    short = make_matcher("deform", limb_judge="fine", limb_judge_iterations=3, **kw).match(source.mesh, target.mesh).info["limbs"]
+    assert short[0]["tried"] == fine[0]["tried"] and short[0]["fine_score"] != fine[0]["fine_score"]
+    assert all(r["kept"] == (r["fine_score_after"] < r["fine_score"]) for r in short)
 
