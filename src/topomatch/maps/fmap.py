@@ -185,6 +185,12 @@ def _commutativity_trace(X: FloatArray, Y: FloatArray) -> float:
     return float(k2 * np.sum(X * X) + k1 * np.sum(Y * Y) - 2.0 * cross)
 
 
+def _add_identity_kron(H4: FloatArray, M: FloatArray) -> None:
+    """``H += I (x) M`` in place, ``H4`` the (k2, k1, k2, k1) view of ``H``."""
+    for a in range(H4.shape[0]):
+        H4[a, :, a, :] += M
+
+
 def _add_commutativity(H: FloatArray, X: FloatArray, Y: FloatArray, w: float) -> None:
     """``H += w * _commutativity_hessian(X, Y)`` in place.
 
@@ -196,8 +202,7 @@ def _add_commutativity(H: FloatArray, X: FloatArray, Y: FloatArray, w: float) ->
     H4 = H.reshape(k2, k1, k2, k1)  # [a, c, b, d]: row a k1 + c, column b k1 + d
     XXt = w * np.einsum("fab,fcb->ac", X, X)
     YtY = w * np.einsum("fba,fbc->ac", Y, Y)
-    for a in range(k2):  # I (x) X X^T
-        H4[a, :, a, :] += XXt
+    _add_identity_kron(H4, XXt)
     for c in range(k1):  # Y^T Y (x) I
         H4[:, c, :, c] += YtY
     K = np.tensordot(Y, X, axes=([0], [0]))  # [a, b, c, d] = sum_f Y_f[a, b] X_f[c, d]
@@ -260,9 +265,7 @@ def solve_fmap(
     AAt = A_1 @ A_1.T
     s_d = inverse_mean_diagonal(k2 * float(np.trace(AAt)))
     H = np.zeros((n, n))
-    H4 = H.reshape(k2, k1, k2, k1)
-    for a in range(k2):
-        H4[a, :, a, :] += (weights.descriptors * s_d) * AAt
+    _add_identity_kron(H.reshape(k2, k1, k2, k1), (weights.descriptors * s_d) * AAt)
     rhs = weights.descriptors * s_d * (A_2 @ A_1.T).ravel()
     if weights.laplacian > 0:
         scale = max(float(np.max(np.abs(ev1), initial=0.0)), float(np.max(np.abs(ev2), initial=0.0)), 1e-300)

@@ -48,6 +48,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from itertools import chain, product
 from typing import Any, TypeVar
 
@@ -978,6 +979,10 @@ class DeformMatcher(Matcher):
             if len(tv) >= 4:
                 yield Hypothesis(name, p[tv], tv)
 
+    def _score(self, r: RegistrationResult) -> float:
+        """The choice's and the limb judge's score: ``residual + distortion_weight x distortion``."""
+        return float(r.residual + self.distortion_weight * r.distortion)
+
     def _n_threads(self) -> int:
         return self.n_threads if self.n_threads is not None else min(4, os.cpu_count() or 1)
 
@@ -1117,7 +1122,7 @@ class DeformMatcher(Matcher):
 
             ids = list(starts)
             runs = self._map(go, ids)
-            scores = [r.residual + self.distortion_weight * r.distortion for r in runs]
+            scores = [self._score(r) for r in runs]
             k_best = int(np.argmin(scores))
             i_best = ids[k_best]
             for i, r in zip(ids, runs):
@@ -1157,15 +1162,12 @@ class DeformMatcher(Matcher):
         def fine_registration(X: FloatArray) -> RegistrationResult:
             return register(source.vertices, source.faces, target.vertices, target.faces, None, fine_schedule, graph=fine_graph, start=X)
 
-        def fine_score(r: RegistrationResult) -> float:
-            return float(r.residual + self.distortion_weight * r.distortion)
-
         fine_now: RegistrationResult | None = None  # the fine registration of starts[i_best]
         parts = source_limbs(graph) if self.limb_rounds > 0 else []
         by_fine = self.limb_judge == "fine"
 
-        def continued(c: tuple[FloatArray, Any]) -> tuple[RegistrationResult, RegistrationResult | None]:
-            r = register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=c[0], samples=samples)
+        def continued(X: FloatArray) -> tuple[RegistrationResult, RegistrationResult | None]:
+            r = register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=X, samples=samples)
             return r, (fine_registration(r.deformed) if by_fine else None)
 
         for _ in range(self.limb_rounds):
@@ -1179,22 +1181,22 @@ class DeformMatcher(Matcher):
                 break
             # one job per candidate (continued, then fine-registered when judged fine) and,
             # the first time, the fine registration of the current state, side by side
-            now = [(np.asarray(starts[i_best]), None)] if by_fine and fine_now is None else []
-            done = _thread_map(
-                lambda job: (fine_registration(job[0]), None) if job[1] is None else continued(job),
-                now + cands, self._n_threads(),
-            )
-            if now:
-                fine_now = done.pop(0)[0]
+            jobs: list[Callable[[], Any]] = [partial(continued, c[0]) for c in cands]
+            first = by_fine and fine_now is None
+            if first:
+                jobs.insert(0, partial(fine_registration, np.asarray(starts[i_best])))
+            done = _thread_map(lambda job: job(), jobs, self._n_threads())
+            if first:
+                fine_now = done.pop(0)
             runs = [r for r, _ in done]
-            scores = [r.residual + self.distortion_weight * r.distortion for r in runs]
+            scores = [self._score(r) for r in runs]
             judged: dict[str, float] = {}
             if by_fine and fine_now is not None:
                 fine_runs = [f for _, f in done]
-                fines = [fine_score(f) for f in fine_runs]
+                fines = [self._score(f) for f in fine_runs]
                 k = int(np.argmin(fines))  # the first of equals: the better coverage
-                kept = bool(fines[k] < fine_score(fine_now))
-                judged = {"fine_score": fine_score(fine_now), "fine_score_after": fines[k]}
+                kept = bool(fines[k] < self._score(fine_now))
+                judged = {"fine_score": self._score(fine_now), "fine_score_after": fines[k]}
                 if kept:
                     fine_now = fine_runs[k]
             else:
