@@ -105,6 +105,50 @@ def test_registration_from_start_positions(pair):
     assert np.array_equal(both.deformed, one.deformed) and both.residual == one.residual
 
 
+
+def test_position_step_reuses_the_last_factor_as_preconditioner(pair, monkeypatch):
+    # a graph large enough for the sparse path: the warm-started conjugate gradients give
+    # the registration the direct solves give (every step factorised afresh)
+    from topomatch.deform import register as reg
+
+    src, tgt, _ = pair
+    sched = RegistrationSchedule(n_nodes=250, fit_iterations=0, icp_iterations=8, alpha_icp=(0.2, 0.01))
+    assert 3 * sched.n_nodes > reg._DENSE_SOLVE_MAX
+    graph = build_deformation_graph(src.vertices, src.faces, sched.n_nodes)
+    start = src.vertices + 0.02 * np.sqrt(src.area) * np.sin(3 * src.vertices[:, [1, 2, 0]])
+    real, solved = reg._pcg, []
+
+    def counting(*args, **kwargs):
+        x, steps = real(*args, **kwargs)
+        solved.append(x is not None)
+        return x, steps
+
+    monkeypatch.setattr(reg, "_pcg", counting)
+    warm = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=graph, start=start)
+    assert sum(solved) >= 4  # most position steps were solved by conjugate gradients
+    monkeypatch.setattr(reg, "_pcg", lambda *a, **k: (None, 0))
+    direct = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=graph, start=start)
+    assert np.abs(warm.deformed - direct.deformed).max() < 1e-7 * np.sqrt(src.area)
+
+
+def test_pcg_solves_and_reports_failure():
+    from scipy import sparse
+
+    from topomatch.deform.register import _pcg
+
+    rng = np.random.default_rng(0)
+    B = sparse.random(300, 300, density=0.02, random_state=rng)
+    A = (B @ B.T + sparse.eye(300)).tocsc()
+    A2 = (A + 0.1 * sparse.diags(rng.random(300))).toarray()  # a nearby matrix's inverse as preconditioner
+    P = np.linalg.inv(A2)
+    b = rng.standard_normal((300, 2))
+    x, steps = _pcg(A, b, np.zeros_like(b), lambda r: P @ r, rtol=1e-12, max_steps=50)
+    assert x is not None and 0 < steps < 50
+    assert np.allclose(x, np.linalg.solve(A.toarray(), b), rtol=0, atol=1e-9)
+    x1, steps1 = _pcg(A, b[:, 0], np.zeros(300), lambda r: r, rtol=1e-12, max_steps=2)  # no preconditioner, 2 steps
+    assert x1 is None and steps1 == 2
+
+
 def _blob(center: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.exp(-np.sum((x - center) ** 2, axis=1) / 0.05)[:, None]
 

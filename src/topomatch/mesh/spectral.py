@@ -69,18 +69,22 @@ class SparseCholesky:
     """
 
     def __init__(self, A: sparse.spmatrix) -> None:
-        A = sparse.coo_matrix(A)
+        if not (sparse.issparse(A) and A.format == "csc"):
+            A = sparse.coo_matrix(A)
         self.n = A.shape[0]
         self._chol = None
         try:
             from cholespy import CholeskySolverD, MatrixType
 
+            if A.format == "csc":  # CHOLMOD's own format: no conversion
+                arrays, kind = (A.indptr, A.indices), MatrixType.CSC
+            else:
+                arrays, kind = (A.row, A.col), MatrixType.COO
             self._chol = CholeskySolverD(
                 self.n,
-                np.ascontiguousarray(A.row, dtype=np.int32),
-                np.ascontiguousarray(A.col, dtype=np.int32),
+                *(np.ascontiguousarray(a, dtype=np.int32) for a in arrays),
                 np.ascontiguousarray(A.data, dtype=np.float64),
-                MatrixType.COO,
+                kind,
             )
         except ImportError:  # pragma: no cover - cholespy is a core dependency
             self._lu = sla.splu(sparse.csc_matrix(A))
