@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
-from topomatch.matching.deform import map_from_deformed
+from topomatch.matching.deform import ACCURATE, map_from_deformed
 from topomatch.matching.template import compose_through_template
 from topomatch.mesh import TriangleMesh
 
@@ -53,8 +53,11 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     src, tgt = builtin["syn00"].mesh, builtin["syn07"].mesh
     c = fitted.match(src, tgt)
     assert c.info["registrations"] == {"target": "computed", "source": "is the template"}
-    direct = make_matcher("deform", **FAST).match(src, tgt)
+    direct = make_matcher("deform", **{**ACCURATE, **FAST}).match(src, tgt)
     np.testing.assert_array_equal(c.p2p_21, direct.p2p_21)
+    # the template's registrations use the accurate settings unless told otherwise
+    assert fitted._deformer().get_params()["limb_judge"] == "fine"
+    assert make_matcher("template", deform={"limb_judge": "coarse"})._deformer().get_params()["limb_judge"] == "coarse"
 
 
 def test_template_composes_the_two_registrations(fitted, builtin):
@@ -63,7 +66,7 @@ def test_template_composes_the_two_registrations(fitted, builtin):
     # syn07 was registered by the previous test (same matcher object): reused
     assert c.info["registrations"] == {"target": "reused", "source": "computed"}
     # the composition, recomputed from the two registrations
-    deform = make_matcher("deform", **FAST)
+    deform = make_matcher("deform", **{**ACCURATE, **FAST})
     template = builtin["syn00"].mesh
     d_t, _ = deform.register(template, t.mesh)
     d_s, _ = deform.register(template, s.mesh)

@@ -30,7 +30,7 @@ from topomatch.datasets.base import Shape
 from topomatch.io import write_mesh
 from topomatch.matching._spectral import find_reference
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
-from topomatch.matching.deform import DeformMatcher, map_from_deformed
+from topomatch.matching.deform import ACCURATE, DeformMatcher, map_from_deformed
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
@@ -71,13 +71,18 @@ class TemplateMatcher(Matcher):
         When not given, ``fit`` takes the null shape of the shapes it receives (for
         TOPKIDS ``kid00``; only its mesh is used).
     deform : dict, optional
-        Hyperparameters of the :class:`DeformMatcher` that registers the template.
+        Hyperparameters of the :class:`DeformMatcher` that registers the template, on
+        top of :data:`~topomatch.matching.deform.ACCURATE` (the registration's slower,
+        more accurate settings: a collection of ``n`` shapes needs ``n`` registrations
+        for its ``n (n - 1)`` pairs, so their time is shared). Give the ``ACCURATE``
+        keys (e.g. ``{"fine_icp_iterations": 40, "limb_judge": "coarse",
+        "limb_judge_iterations": None}``) to register as ``deform`` does by default.
 
     Notes
     -----
     When the source (or the target) *is* the template (same vertices and faces), its
     side of the composition is the identity, so on the ``topkids25`` pairs the maps
-    are exactly :class:`DeformMatcher`'s. Registrations are kept per shape (keyed by
+    are exactly those of a :class:`DeformMatcher` with the same hyperparameters. Registrations are kept per shape (keyed by
     content), so matching every pair of a collection in one process costs one
     registration per shape; ``info["registrations"]`` says which were computed.
     The kept registrations cost 24 bytes per template vertex per shape (0.3 MB for a
@@ -96,7 +101,7 @@ class TemplateMatcher(Matcher):
         self.deform = deform
 
     def _deformer(self) -> DeformMatcher:
-        params = dict(self.deform or {})
+        params = {**ACCURATE, **(self.deform or {})}
         try:
             m = DeformMatcher(**params)
         except TypeError as err:
