@@ -45,11 +45,12 @@ import dataclasses
 import logging
 import os
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 from itertools import chain, product
+from types import MappingProxyType
 from typing import Any, TypeVar
 
 import numpy as np
@@ -212,7 +213,7 @@ def spectral_hypotheses(
 
 RIGID_FRAMES = ("as-given", "principal-axes")
 
-ACCURATE: dict[str, Any] = {"fine_icp_iterations": 80, "limb_judge": "fine", "limb_judge_iterations": 25}
+ACCURATE: Mapping[str, Any] = MappingProxyType({"fine_icp_iterations": 80, "limb_judge": "fine", "limb_judge_iterations": 25})
 """:class:`DeformMatcher` settings for when a registration may take about twice the
 default's time: each limb turn judged after a 25-iteration fine registration, and 80
 final closest-point iterations instead of 40. On the training pairs (kid00 -> kid01..kid15,
