@@ -209,7 +209,9 @@ class _GramPattern:
     diagonal: IndexArray
     link_entries: IndexArray
     vertex_products: sparse.csr_matrix
-    _layouts: dict = field(default_factory=dict, repr=False, compare=False)
+    _layouts: dict[tuple[tuple[int, int], ...], tuple[IndexArray, IndexArray, IndexArray, IndexArray]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
     @classmethod
     def build(cls, skin: sparse.csr_matrix, links: IndexArray) -> _GramPattern:
@@ -342,6 +344,12 @@ class _GramPattern:
             of a ``d x d`` block matrix of ``m x m`` blocks; blocks not given are zero.
         rhs : ndarray, shape (d m,) or (d m, r)
         x0 : ndarray, same shape as ``rhs``
+            The current solution: the start of the conjugate gradients.
+        last : _LastFactor, optional
+            The calling registration's last sparse factorisation. When given, sparse
+            systems are solved by conjugate gradients preconditioned with it (to a
+            relative residual of ``_PCG_RTOL``) and factorised afresh when it is missing
+            or stale; the new factor is kept there.
 
         Returns
         -------

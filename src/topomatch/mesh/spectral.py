@@ -65,7 +65,8 @@ class SparseCholesky:
     Parameters
     ----------
     A : scipy.sparse matrix, shape (n, n)
-        Symmetric positive definite.
+        Symmetric positive definite (both triangles stored). A CSC matrix goes to
+        CHOLMOD as it is; other formats through COO.
     """
 
     def __init__(self, A: sparse.spmatrix) -> None:
