@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 from topomatch.deform.graph import DeformationGraph
 from topomatch.mesh.geometry import vertex_normals
 from topomatch.mesh.spectral import SparseCholesky
-from topomatch.typing import FloatArray, IndexArray
+from topomatch.typing import BoolArray, FloatArray, IndexArray
 
 __all__ = [
     "DataPairs",
@@ -183,6 +183,17 @@ def _pcg(
     return None, max_steps
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """Compressed structure of one block system on a :class:`_GramPattern` (see ``_layout``)."""
+
+    indptr: IndexArray
+    indices: IndexArray
+    slots: IndexArray
+    diagonal: IndexArray
+    picks: list[tuple[tuple[int, int], slice | BoolArray]]
+
+
 @dataclass(frozen=True, eq=False)
 class _GramPattern:
     """Fixed structure of the Gram matrices ``skin^T diag(W) skin`` of one deformation graph.
@@ -209,7 +220,7 @@ class _GramPattern:
     diagonal: IndexArray
     link_entries: IndexArray
     vertex_products: sparse.csr_matrix
-    _layouts: dict[tuple[tuple[int, int], ...], tuple[IndexArray, IndexArray, IndexArray, IndexArray]] = field(
+    _layouts: dict[tuple[tuple[int, int], ...], _Layout] = field(
         default_factory=dict, repr=False, compare=False
     )
 
@@ -260,44 +271,39 @@ class _GramPattern:
         """Number of stored (upper-triangle) entries."""
         return len(self.rows)
 
-    def _values(self, keys: tuple[tuple[int, int], ...], blocks: dict[tuple[int, int], FloatArray]) -> FloatArray:
-        """The blocks' values in the order of :meth:`_layout`'s slots."""
-        off = self.rows != self.cols
-        parts = []
-        for ij in keys:
-            v = blocks[ij]
-            # a diagonal block: its upper triangle and its strict upper triangle mirrored;
-            # an off-diagonal block: the block (upper-triangle values and their mirror) and its transpose
-            parts += [v, v[off]] if ij[0] == ij[1] else [v, v[off], v, v[off]]
-        return np.concatenate(parts)
-
-    def _layout(self, keys: tuple[tuple[int, int], ...], d: int) -> tuple[IndexArray, IndexArray, IndexArray, IndexArray]:
+    def _layout(self, keys: tuple[tuple[int, int], ...], d: int) -> _Layout:
         """Compressed (CSR = CSC) structure of the ``d m x d m`` system with the blocks ``keys``.
 
-        Returns ``indptr``, ``indices``, the slot of every value in the order
-        :meth:`solve` concatenates them, and the slots of the diagonal.
+        Each block is given by its upper-triangle values ``v``; a diagonal block stores
+        ``v`` and its strict upper part mirrored, an off-diagonal block ``(i, j)`` the
+        block (``v`` and its mirror) and its transpose. ``picks`` says which values of
+        which block go in, in the order of ``slots``.
         """
         m = len(self.diagonal)
         r, c = self.rows, self.cols
         off = r != c
-        ii, jj = [], []
+        every = slice(None)
+        ii, jj, picks = [], [], []
         for i, j in keys:
             if i == j:
-                ii += [i * m + r, j * m + c[off]]
-                jj += [j * m + c, i * m + r[off]]
+                parts = [(i * m + r, j * m + c, every), (j * m + c[off], i * m + r[off], off)]
             else:
-                ii += [i * m + r, i * m + c[off], j * m + c, j * m + r[off]]
-                jj += [j * m + c, j * m + r[off], i * m + r, i * m + c[off]]
+                parts = [
+                    (i * m + r, j * m + c, every), (i * m + c[off], j * m + r[off], off),
+                    (j * m + c, i * m + r, every), (j * m + r[off], i * m + c[off], off),
+                ]
+            for rows, cols, pick in parts:
+                ii.append(rows)
+                jj.append(cols)
+                picks.append(((i, j), pick))
         size = d * m
         ii.append(np.arange(size))
         jj.append(np.arange(size))
         flat = np.concatenate(ii).astype(np.int64) * size + np.concatenate(jj)
         uniq, slots = np.unique(flat, return_inverse=True)
-        rows = uniq // size
-        indptr = np.searchsorted(rows, np.arange(size + 1)).astype(np.int32)
-        indices = (uniq % size).astype(np.int32)
+        indptr = np.searchsorted(uniq // size, np.arange(size + 1)).astype(np.int32)
         n_values = len(flat) - size
-        return indptr, indices, slots[:n_values], slots[n_values:]
+        return _Layout(indptr, (uniq % size).astype(np.int32), slots[:n_values], slots[n_values:], picks)
 
     def grams(self, source: IndexArray, weights: FloatArray) -> FloatArray:
         """Upper triangles of ``P^T diag(w_k) P`` for ``P = skin[source]``, shape (n_entries, k).
@@ -372,11 +378,11 @@ class _GramPattern:
         layout = self._layouts.get(keys)
         if layout is None:
             layout = self._layouts.setdefault(keys, self._layout(keys, d))
-        indptr, indices, slots, diag = layout
-        data = np.bincount(slots, weights=self._values(keys, blocks), minlength=len(indices))
-        data[diag] += eps
+        values = np.concatenate([blocks[ij][pick] for ij, pick in layout.picks])
+        data = np.bincount(layout.slots, weights=values, minlength=len(layout.indices))
+        data[layout.diagonal] += eps
         # symmetric: its CSR arrays are also its CSC arrays
-        H = sparse.csc_matrix((data, indices, indptr), shape=(size, size))
+        H = sparse.csc_matrix((data, layout.indices, layout.indptr), shape=(size, size))
         b = rhs + eps * x0
         if last is not None and last.factor is not None and last.factor.n == size:
             x, steps = _pcg(H, b, x0, last.factor.solve, rtol=_PCG_RTOL, max_steps=_PCG_MAX_STEPS)

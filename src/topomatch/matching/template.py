@@ -82,9 +82,9 @@ class TemplateMatcher(Matcher):
     -----
     When the source (or the target) *is* the template (same vertices and faces), its
     side of the composition is the identity, so on the ``topkids25`` pairs the maps
-    are exactly those of a :class:`DeformMatcher` with the same hyperparameters. Registrations are kept per shape (keyed by
-    content), so matching every pair of a collection in one process costs one
-    registration per shape; ``info["registrations"]`` says which were computed.
+    are exactly those of a :class:`DeformMatcher` with the same hyperparameters.
+    Registrations are kept per shape (keyed by content), so matching every pair of a
+    collection in one process costs one registration per shape; ``info["registrations"]`` says which were computed.
     The kept registrations cost 24 bytes per template vertex per shape (0.3 MB for a
     12K-vertex template, 1.4 MB at 60K); a new ``fit`` forgets them.
     """
