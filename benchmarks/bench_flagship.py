@@ -43,6 +43,7 @@ import numpy as np
 from topomatch._memory import PeakMemory, current_rss_mb
 from topomatch.cli.main import _parse_params
 from topomatch.datasets.topkids import load_topkids
+from topomatch.evaluation.benchmark import _versions
 from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps, summarize
 from topomatch.matching import DEFAULT_METHOD, make_matcher
@@ -106,7 +107,9 @@ def main() -> None:
     if unknown:
         ap.error(f"--param for {', '.join(unknown)}, which --methods does not list")
     runners = {m: (pyfm_zoomout if m == "pyfm-zoomout" else ours(m.split("@")[0], params.get(m))) for m in methods}
+    machine = _versions()
     print(f"{len(pairs)} pairs ({args.protocol}, {args.split}, {args.resolution} res); methods: {', '.join(methods)}")
+    print(f"machine: {machine['cpu']}, {machine['cpu_count']} CPUs; Python {machine['python']}, numpy {machine['numpy']}, scipy {machine['scipy']}")
 
     maps: dict[tuple[str, str], np.ndarray] = {}
     secs: dict[str, list[float]] = {m: [] for m in methods}
@@ -187,6 +190,7 @@ def main() -> None:
         out = {
             "pairs": [p.id for p in pairs],
             "args": vars(args),
+            "machine": machine,
             "seconds": secs,
             "seconds_runs": runs,
             "peak_mb": peak,

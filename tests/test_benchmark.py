@@ -35,6 +35,7 @@ def test_run_is_complete_and_resumable(tmp_path):
         assert key in s1["methods"]["descriptor-nn"]["shrec16"]
     man = json.loads((out / "manifest.json").read_text())
     assert man["versions"]["numpy"] and man["protocols"]["shrec16"]["symmetric"] is True
+    assert man["versions"]["cpu"] and int(man["versions"]["cpu_count"]) >= 1
     # kill half way: remove some maps and scores, run again, same numbers
     run = RunDir(out)
     removed = sorted((out / "maps" / "descriptor-nn").glob("*.npz"))[:3]

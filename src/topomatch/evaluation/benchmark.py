@@ -150,10 +150,29 @@ def _git_revision() -> str | None:
     return None
 
 
+def cpu_model() -> str:
+    """The processor's model name (Linux ``/proc/cpuinfo``; else :func:`platform.processor`; else ``"unknown"``).
+
+    Recorded beside timings: the same code ran 1.45x slower on one machine of our kind
+    than on another (``docs/flagship.md``, session 19), so a time means little without it.
+    """
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
 def _versions() -> dict[str, str]:
     import importlib.metadata as md
 
-    out = {"python": platform.python_version(), "topomatch": __version__, "platform": platform.platform()}
+    out = {
+        "python": platform.python_version(), "topomatch": __version__, "platform": platform.platform(),
+        "cpu": cpu_model(), "cpu_count": str(os.cpu_count()),
+    }
     for pkg in ("numpy", "scipy", "scikit-learn", "robust-laplacian", "potpourri3d", "cholespy", "faiss-cpu", "pygeodesic", "numba"):
         try:
             out[pkg] = md.version(pkg)
