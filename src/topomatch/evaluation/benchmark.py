@@ -173,7 +173,7 @@ def _versions() -> dict[str, str]:
         "python": platform.python_version(), "topomatch": __version__, "platform": platform.platform(),
         "cpu": cpu_model(), "cpu_count": str(os.cpu_count()),
     }
-    for pkg in ("numpy", "scipy", "scikit-learn", "robust-laplacian", "potpourri3d", "cholespy", "faiss-cpu", "pygeodesic", "numba"):
+    for pkg in ("numpy", "scipy", "scikit-learn", "robust-laplacian", "potpourri3d", "cholespy", "pygeodesic", "numba"):
         try:
             out[pkg] = md.version(pkg)
         except md.PackageNotFoundError:
