@@ -34,6 +34,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial import cKDTree
 
 from topomatch.deform.graph import DeformationGraph
+from topomatch.deform.kdtree import PointTree
 from topomatch.mesh.geometry import vertex_normals
 from topomatch.mesh.spectral import SparseCholesky
 from topomatch.typing import BoolArray, FloatArray, IndexArray
@@ -589,11 +590,8 @@ class GraphDeformation:
         del m
 
 
-def _search_tree(points: FloatArray) -> cKDTree:
+def _search_tree(points: FloatArray) -> PointTree:
     """A k-d tree for the nearest-neighbour queries of the registration loop.
-
-    Sliding-midpoint splits and unshrunk node boxes: about half the build time of the
-    default tree and faster queries on meshes (same neighbours, the search is exact).
 
     Parameters
     ----------
@@ -601,25 +599,15 @@ def _search_tree(points: FloatArray) -> cKDTree:
 
     Returns
     -------
-    scipy.spatial.cKDTree
+    PointTree
     """
-    return cKDTree(points, balanced_tree=False, compact_nodes=False)
-
-
-_PARALLEL_QUERY = 20000
-"""Queries with more points than this use all cores."""
-
-
-def _query_workers(n_points: int) -> int:
-    # scipy starts threads on every query with workers=-1: slower than one thread for
-    # the few thousand points of a sample (the registrations run on threads anyway)
-    return -1 if n_points > _PARALLEL_QUERY else 1
+    return PointTree(points)
 
 
 def nearest_compatible(
     points: FloatArray,
     normals: FloatArray,
-    tree: cKDTree,
+    tree: PointTree | cKDTree,
     ref_normals: FloatArray,
     *,
     k: int = 8,
@@ -630,17 +618,30 @@ def nearest_compatible(
     Among the ``k`` nearest reference points, take the first with
     ``normal . ref_normal >= min_cos``; fall back to the nearest.
 
+    Parameters
+    ----------
+    points : ndarray, shape (q, 3)
+    normals : ndarray, shape (q, 3)
+    tree : PointTree or scipy.spatial.cKDTree
+        Built on the reference points (a :class:`~topomatch.deform.kdtree.PointTree`
+        answers in one compiled pass; a ``cKDTree`` gives the same answer).
+    ref_normals : ndarray, shape (n, 3)
+    k : int
+    min_cos : float
+
     Returns
     -------
     index : ndarray, shape (q,)
     distance : ndarray, shape (q,)
     """
-    d, idx = tree.query(points, k=1, workers=_query_workers(len(points)))
+    if isinstance(tree, PointTree):
+        return tree.nearest_compatible(points, normals, ref_normals, k=k, min_cos=min_cos)
+    d, idx = tree.query(points, k=1)
     if k == 1:
         return idx, d
     bad = np.flatnonzero(np.einsum("qc,qc->q", normals, ref_normals[idx]) < min_cos)
     if bad.size:
-        dk, ik = tree.query(points[bad], k=k, workers=_query_workers(len(bad)))
+        dk, ik = tree.query(points[bad], k=k)
         cos = np.einsum("qc,qkc->qk", normals[bad], ref_normals[ik])
         ok = cos >= min_cos
         first = np.where(ok.any(axis=1), np.argmax(ok, axis=1), 0)
@@ -655,7 +656,7 @@ def closest_pairs(
     deformed_normals: FloatArray,
     target_vertices: FloatArray,
     target_normals: FloatArray,
-    target_tree: cKDTree,
+    target_tree: PointTree | cKDTree,
     *,
     sigma: float,
     min_cos: float = 0.3,
@@ -663,6 +664,7 @@ def closest_pairs(
     target_subset: IndexArray | None = None,
     backward: bool = True,
     pool: Executor | None = None,
+    source_tree: PointTree | None = None,
 ) -> DataPairs:
     """ICP pairs in both directions with normal compatibility and robust weights.
 
@@ -670,12 +672,14 @@ def closest_pairs(
     vertex. Backward: each (sampled) target vertex to its nearest compatible deformed
     source vertex, so that every part of the target pulls on the source. Weights are
     ``1 / (1 + (d / sigma)^2)``; incompatible normals get weight zero. With ``pool``
-    the backward search runs on it beside the forward one (same pairs).
+    the backward search runs on it beside the forward one (same pairs). With
+    ``source_tree`` (a tree on the source's vertices, e.g. from the previous iteration)
+    the backward search refits it to ``deformed`` instead of building a tree (same pairs).
     """
 
     def backward_pairs() -> DataPairs:
         tgt = np.arange(len(target_vertices)) if target_subset is None else np.asarray(target_subset)
-        stree = _search_tree(deformed)
+        stree = _search_tree(deformed) if source_tree is None else source_tree.refit(deformed)
         i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
         cos2 = np.einsum("pc,pc->p", target_normals[tgt], deformed_normals[i])
         w2 = np.where(cos2 >= min_cos, 1.0 / (1.0 + (d2 / sigma) ** 2), 0.0)
@@ -764,7 +768,7 @@ def fit_residual(
     source_faces: IndexArray,
     target_vertices: FloatArray,
     target_normals: FloatArray,
-    target_tree: cKDTree,
+    target_tree: PointTree | cKDTree,
     *,
     scale: float,
     samples: tuple[IndexArray | None, IndexArray | None] = (None, None),
@@ -784,7 +788,7 @@ def fit_residual(
     source_faces : ndarray, shape (f1, 3)
     target_vertices : ndarray, shape (n2, 3)
     target_normals : ndarray, shape (n2, 3)
-    target_tree : cKDTree
+    target_tree : PointTree or cKDTree
         Built on ``target_vertices``.
     scale : float
         Length unit (the square root of the source's area).
@@ -891,14 +895,17 @@ def register(
         src_s = farthest_point_sampling(min(schedule.n_samples, len(V)), points=V, first=0)
         tgt_s = farthest_point_sampling(min(schedule.n_samples, len(W)), points=W, first=0)
     tree = _search_tree(W)
+    stree: PointTree | None = None  # on the deformed source: built once, refitted every iteration
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(schedule.icp_iterations):
             t = it / max(schedule.icp_iterations - 1, 1)
             Vd = D.deformed()
             Nd = vertex_normals(Vd, F)
+            if stree is None:
+                stree = _search_tree(Vd)
             pairs = closest_pairs(
                 Vd, Nd, W, Nt, tree, sigma=scale * _geometric(schedule.sigma_icp, t), min_cos=schedule.min_cos,
-                source_subset=src_s, target_subset=tgt_s, pool=pool,
+                source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
             )
             D.update_rotations(pairs)
             D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)

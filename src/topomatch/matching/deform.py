@@ -56,10 +56,10 @@ from typing import Any, TypeVar
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from topomatch.deform.graph import DeformationGraph, build_deformation_graph
+from topomatch.deform.kdtree import PointTree
 from topomatch.deform.register import (
     DataPairs,
     GraphDeformation,
@@ -226,7 +226,7 @@ def _rigid_icp(
     X: FloatArray, NX: FloatArray, Y: FloatArray, NY: FloatArray, R: FloatArray, t: FloatArray, iterations: int
 ) -> tuple[FloatArray, FloatArray]:
     """Refine ``x -> R x + t`` by point-to-point ICP with normal-compatible, robustly weighted pairs."""
-    tree = cKDTree(Y)
+    tree = PointTree(Y)
     for _ in range(iterations):
         Xt = X @ R.T + t
         j, d = nearest_compatible(Xt, NX @ R.T, tree, NY, min_cos=0.3)
@@ -242,7 +242,7 @@ def _rigid_icp(
 
 def _nearest_aligned(W: FloatArray, Nw: FloatArray, X: FloatArray, NX: FloatArray) -> IndexArray:
     """For each target sample ``W`` (normals ``Nw``), the nearest aligned source vertex ``X`` (normals ``NX``) with a compatible normal."""
-    j, _ = nearest_compatible(W, Nw, cKDTree(X), NX, min_cos=0.3)
+    j, _ = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
     return np.asarray(j, dtype=np.int64)
 
 
@@ -416,7 +416,7 @@ def articulated_hypotheses(
     scale = float(np.sqrt(target.area / source.area))
     cap = 0.05 * float(np.sqrt(target.area))
     c2 = target.vertices.mean(axis=0)
-    tree = cKDTree(W)
+    tree = PointTree(W)
     scored = []
     for label, Vb in bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles):
         Nb = vertex_normals(Vb, source.faces)
@@ -424,7 +424,7 @@ def articulated_hypotheses(
         X = scale * Vb[s1] @ R.T + t
         NX = Nb[s1] @ R.T
         _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
-        _, d2 = nearest_compatible(W, Nw, cKDTree(X), NX, min_cos=0.3)
+        _, d2 = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
         residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
         scored.append((residual, label, Vb, Nb, R, t))
     scored.sort(key=lambda x: x[0])
@@ -588,14 +588,14 @@ def turn_limb(
             return None
         root = cur[ring].mean(axis=0)
         rest, moving = s1[~inner], s1[inner]
-        _, d_rest = nearest_compatible(W, Nw, cKDTree(cur[rest]), N[rest], min_cos=0.3)
+        _, d_rest = nearest_compatible(W, Nw, PointTree(cur[rest]), N[rest], min_cos=0.3)
         d_rest = np.minimum(d_rest, cap)
         # only the target samples the rest leaves uncovered can gain (_LIMB_REACH); turning
         # the limb by R about the root = turning those samples by R^T (one tree per part)
         far = np.flatnonzero(d_rest > _LIMB_REACH * cap)
         if len(far) == 0:
             return None
-        tree = cKDTree(cur[moving] - root)
+        tree = PointTree(cur[moving] - root)
         Wc, Nc, Nl = W[far] - root, Nw[far], N[moving]
         covered, d_far = float(d_rest[d_rest <= _LIMB_REACH * cap].sum()), d_rest[far]
         costs = []
@@ -662,7 +662,7 @@ def swap_regions(
     """
     F = source.faces
     W, Nt = target.vertices, target.vertex_normals
-    tree = cKDTree(W)
+    tree = PointTree(W)
     scale = float(np.sqrt(source.area))
     smp = samples if samples is not None else (None, None)
     E = source.edges
@@ -717,7 +717,7 @@ def map_from_deformed(target: TriangleMesh, deformed: FloatArray, source_faces: 
     ndarray, shape (n_target,)
         Source vertex for each target vertex.
     """
-    p2p, _ = nearest_compatible(target.vertices, target.vertex_normals, cKDTree(deformed), vertex_normals(deformed, source_faces), min_cos=0.3)
+    p2p, _ = nearest_compatible(target.vertices, target.vertex_normals, PointTree(deformed), vertex_normals(deformed, source_faces), min_cos=0.3)
     return p2p
 
 

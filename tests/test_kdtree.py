@@ -1,0 +1,87 @@
+"""The registration's k-d tree (deform.kdtree) against brute force and scipy's cKDTree."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from topomatch.datasets.toy import icosphere
+from topomatch.deform.kdtree import PointTree
+from topomatch.deform.register import nearest_compatible
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def _brute(P, Q, NQ, RN, k, min_cos):
+    D = np.linalg.norm(Q[:, None] - P[None], axis=-1)
+    order = np.argsort(D, axis=1, kind="stable")[:, :k]
+    out = order[:, 0].copy()
+    for q in range(len(Q)):
+        ok = [j for j in order[q] if NQ[q] @ RN[j] >= min_cos]
+        if ok:
+            out[q] = ok[0]
+    return out, D[np.arange(len(Q)), out]
+
+
+@pytest.mark.parametrize("n", [1, 5, 13, 400, 3000])
+def test_nearest_compatible_equals_brute_force(n):
+    rng = np.random.default_rng(n)
+    P = rng.standard_normal((n, 3)) * [1.0, 0.3, 2.0]  # uneven extents: splits along every axis
+    RN = _unit(rng.standard_normal((n, 3)))
+    Q = np.r_[rng.standard_normal((300, 3)), 10 * rng.standard_normal((20, 3))]  # near and far queries
+    NQ = _unit(rng.standard_normal((len(Q), 3)))
+    tree = PointTree(P)
+    for k, min_cos in ((1, 0.0), (8, 0.3), (8, 0.9), (3, -2.0)):
+        i, d = tree.nearest_compatible(Q, NQ, RN, k=k, min_cos=min_cos)
+        bi, bd = _brute(P, Q, NQ, RN, min(k, n), min_cos)
+        np.testing.assert_array_equal(i, bi)
+        np.testing.assert_allclose(d, bd, rtol=1e-12, atol=1e-12)
+        # the same answer through the registration's function, with either tree
+        ci, cd = nearest_compatible(Q, NQ, cKDTree(P), RN, k=min(k, n), min_cos=min_cos)
+        np.testing.assert_array_equal(ci, i)
+        np.testing.assert_allclose(cd, d, rtol=1e-12, atol=1e-12)
+    dist, idx = tree.query(Q)
+    np.testing.assert_array_equal(idx, _brute(P, Q, NQ, RN, 1, 0.0)[0])
+    np.testing.assert_allclose(dist, np.linalg.norm(Q - P[idx], axis=1), rtol=1e-12)
+
+
+def test_refit_stays_exact_for_moved_points():
+    mesh = icosphere(3)
+    rng = np.random.default_rng(0)
+    tree = PointTree(mesh.vertices)
+    Q = rng.standard_normal((500, 3))
+    for step in range(4):  # growing deformations of the points the tree was built on
+        moved = mesh.vertices * [1.0 + step, 1.0, 1.0 / (1 + step)] + 0.2 * step * rng.standard_normal(mesh.vertices.shape)
+        dist, idx = tree.refit(moved).query(Q)
+        ref_d, ref_i = cKDTree(moved).query(Q)
+        np.testing.assert_array_equal(idx, ref_i)
+        np.testing.assert_allclose(dist, ref_d, rtol=1e-12)
+        np.testing.assert_array_equal(tree.data, moved)
+
+
+def test_duplicate_points_and_ties():
+    P = np.zeros((50, 3))
+    P[25:] = 1.0
+    tree = PointTree(P)
+    i, d = tree.nearest_compatible(np.array([[0.1, 0.0, 0.0], [0.9, 1.0, 1.0]]), np.zeros((2, 3)), np.zeros((50, 3)), k=8)
+    assert i[0] < 25 <= i[1]
+    np.testing.assert_allclose(d, [0.1, 0.1])
+
+
+def test_point_tree_rejects_bad_input():
+    with pytest.raises(ValueError, match="shape"):
+        PointTree(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="no points"):
+        PointTree(np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="finite"):
+        PointTree(np.array([[0.0, np.nan, 0.0]]))
+    tree = PointTree(np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="expected 4 points"):
+        tree.refit(np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="normals"):
+        tree.nearest_compatible(np.zeros((2, 3)), np.zeros((3, 3)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="reference normals"):
+        tree.nearest_compatible(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((3, 3)))
