@@ -93,3 +93,22 @@ def test_mesh_pickles_after_building_a_geodesic_solver(sphere):
     clone = pickle.loads(pickle.dumps(mesh))
     assert clone.name == "s" and np.array_equal(clone.faces, mesh.faces)
     assert np.allclose(clone.geodesic_solver("heat").distances_from([0]), d0)
+
+
+def test_vertex_normals_kernel_has_the_numpy_formula_s_bits():
+    rng = np.random.default_rng(0)
+    for mesh in (icosphere(3), torus(), grid(7, 5)):
+        V = mesh.vertices + 0.05 * rng.standard_normal(mesh.vertices.shape)
+        np.testing.assert_array_equal(g.vertex_normals(V, mesh.faces), g._vertex_normals_numpy(V, mesh.faces))
+    # an isolated vertex and a degenerate face get zero normals
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5], [2, 0, 0]])
+    F = np.array([[0, 1, 2], [0, 1, 4]])
+    n = g.vertex_normals(V, F)
+    np.testing.assert_array_equal(n, g._vertex_normals_numpy(V, F))
+    np.testing.assert_array_equal(n[3], 0.0)
+    with pytest.raises(ValueError, match="face indices"):
+        g.vertex_normals(V, np.array([[0, 1, 5]]))
+    with pytest.raises(ValueError, match="face indices"):
+        g.vertex_normals(V, np.array([[0, -1, 2]]))
+    with pytest.raises(ValueError, match="must be"):
+        g.vertex_normals(V[:, :2], F)

@@ -34,3 +34,50 @@ def heat_divergence(u_t, faces, coef, area, out):  # pragma: no cover - compiled
             o[i0] += coef[f, 0, 0] * xx + coef[f, 0, 1] * xy
             o[i1] += coef[f, 1, 0] * xx + coef[f, 1, 1] * xy
             o[i2] += coef[f, 2, 0] * xx + coef[f, 2, 1] * xy
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def vertex_normal_sums(vertices, faces, out):  # pragma: no cover - compiled
+    """Unit area-weighted vertex normals into ``out`` (n, 3), zero where the sum vanishes.
+
+    Bit for bit the numpy formula of :func:`topomatch.mesh.geometry.vertex_normals`: each
+    face's cross product (np.cross's formula) added to its corners' sums in the order
+    ``np.bincount(faces.T.ravel())`` adds them (every face's first corner, then second,
+    then third), then divided by the norm ``sqrt((x^2 + y^2) + z^2)``.
+    """
+    n = vertices.shape[0]
+    nf = faces.shape[0]
+    for v in range(n):
+        out[v, 0] = 0.0
+        out[v, 1] = 0.0
+        out[v, 2] = 0.0
+    cx = np.empty(nf)
+    cy = np.empty(nf)
+    cz = np.empty(nf)
+    for f in range(nf):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        ax = vertices[i1, 0] - vertices[i0, 0]
+        ay = vertices[i1, 1] - vertices[i0, 1]
+        az = vertices[i1, 2] - vertices[i0, 2]
+        bx = vertices[i2, 0] - vertices[i0, 0]
+        by = vertices[i2, 1] - vertices[i0, 1]
+        bz = vertices[i2, 2] - vertices[i0, 2]
+        cx[f] = ay * bz - az * by
+        cy[f] = az * bx - ax * bz
+        cz[f] = ax * by - ay * bx
+    for corner in range(3):
+        for f in range(nf):
+            v = faces[f, corner]
+            out[v, 0] += cx[f]
+            out[v, 1] += cy[f]
+            out[v, 2] += cz[f]
+    for v in range(n):
+        s = np.sqrt(out[v, 0] * out[v, 0] + out[v, 1] * out[v, 1] + out[v, 2] * out[v, 2])
+        if s > 0.0:
+            out[v, 0] /= s
+            out[v, 1] /= s
+            out[v, 2] /= s
+        else:
+            out[v, 0] = 0.0
+            out[v, 1] = 0.0
+            out[v, 2] = 0.0

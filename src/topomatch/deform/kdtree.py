@@ -9,7 +9,7 @@ agrees with the query's (among its ``k`` nearest; the nearest when none agrees).
 disagrees, and without holding the GIL, so the registrations that run on threads search
 side by side. The answers are exact and equal to a brute-force search's (the
 registration's maps were unchanged against scipy's ``cKDTree``). On the queries of one
-``deform`` match (kid00 -> kid13, one thread, ``benchmarks/bench_kdtree.py``) the queries
+``deform`` match (kid00 -> kid13, one thread, every tenth query, ``benchmarks/bench_kdtree.py``) they
 took 0.42 s against 0.73 s (x1.4 for 1,500 queries into the 10K-vertex target, x2-2.5
 for the limb turns' queries into small parts); building is slower (2.1 ms against
 1.2 ms at 10K points), which the registration avoids by refitting.
