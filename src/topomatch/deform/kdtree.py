@@ -138,34 +138,17 @@ def _build(P, leaf):  # pragma: no cover - compiled
 
 
 @numba.njit(inline="always")
-def _box_d2(q0, q1, q2, bmin, bmax, node):  # pragma: no cover - compiled
+def _box_d2(q, bmin, bmax, node):  # pragma: no cover - compiled
+    """Squared distance from ``q`` to the box of ``node`` (0 inside)."""
     s = 0.0
-    t = bmin[node, 0] - q0
-    if t > 0.0:
+    for d in range(3):
+        t = max(bmin[node, d] - q[d], q[d] - bmax[node, d], 0.0)
         s += t * t
-    else:
-        t = q0 - bmax[node, 0]
-        if t > 0.0:
-            s += t * t
-    t = bmin[node, 1] - q1
-    if t > 0.0:
-        s += t * t
-    else:
-        t = q1 - bmax[node, 1]
-        if t > 0.0:
-            s += t * t
-    t = bmin[node, 2] - q2
-    if t > 0.0:
-        s += t * t
-    else:
-        t = q2 - bmax[node, 2]
-        if t > 0.0:
-            s += t * t
     return s
 
 
 @numba.njit(cache=True, nogil=True)
-def _knn(Ps, perm, lo, hi, left, bmin, bmax, q0, q1, q2, k, best_d, best_i, stack_n, stack_d):  # pragma: no cover
+def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stack_d):  # pragma: no cover
     """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves)."""
     for j in range(k):
         best_d[j] = np.inf
@@ -180,9 +163,9 @@ def _knn(Ps, perm, lo, hi, left, bmin, bmax, q0, q1, q2, k, best_d, best_i, stac
             continue
         if left[node] < 0:
             for i in range(lo[node], hi[node]):
-                dx = Ps[i, 0] - q0
-                dy = Ps[i, 1] - q1
-                dz = Ps[i, 2] - q2
+                dx = Ps[i, 0] - q[0]
+                dy = Ps[i, 1] - q[1]
+                dz = Ps[i, 2] - q[2]
                 d2 = dx * dx + dy * dy + dz * dz
                 if d2 < best_d[k - 1]:
                     j = k - 1
@@ -194,8 +177,8 @@ def _knn(Ps, perm, lo, hi, left, bmin, bmax, q0, q1, q2, k, best_d, best_i, stac
                     best_i[j] = perm[i]
             continue
         a = left[node]
-        da = _box_d2(q0, q1, q2, bmin, bmax, a)
-        db = _box_d2(q0, q1, q2, bmin, bmax, a + 1)
+        da = _box_d2(q, bmin, bmax, a)
+        db = _box_d2(q, bmin, bmax, a + 1)
         if da <= db:
             near, d_near, far, d_far = a, da, a + 1, db
         else:
@@ -217,8 +200,7 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
     bd = np.empty(max(k, 1))
     bi = np.empty(max(k, 1), np.int64)
     for q in range(Q.shape[0]):
-        q0, q1, q2 = Q[q, 0], Q[q, 1], Q[q, 2]
-        _knn(Ps, perm, lo, hi, left, bmin, bmax, q0, q1, q2, 1, bd, bi, stack_n, stack_d)
+        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], 1, bd, bi, stack_n, stack_d)
         j = bi[0]
         out_i[q] = j
         out_d[q] = np.sqrt(bd[0])
@@ -227,7 +209,7 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
         c = NQ[q, 0] * RN[j, 0] + NQ[q, 1] * RN[j, 1] + NQ[q, 2] * RN[j, 2]
         if c >= min_cos:
             continue
-        _knn(Ps, perm, lo, hi, left, bmin, bmax, q0, q1, q2, k, bd, bi, stack_n, stack_d)
+        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], k, bd, bi, stack_n, stack_d)
         for m in range(k):
             jj = bi[m]
             if jj < 0:
