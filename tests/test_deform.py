@@ -24,6 +24,7 @@ from topomatch.matching.deform import (
 )
 from topomatch.mesh import TriangleMesh
 from topomatch.mesh.geometry import axis_rotation
+from topomatch.mesh.mesh import EigenbasisJob
 from topomatch.mesh.sampling import farthest_point_sampling
 
 from ._fmap_shapes import bumpy, shuffled
@@ -184,12 +185,27 @@ def test_swap_regions_takes_the_region_another_registration_got_right(pair):
     assert swaps3 == []
 
 
-def test_deform_matcher_on_a_bent_shuffled_copy(pair):
+def test_deform_matcher_on_a_bent_shuffled_copy(pair, monkeypatch):
+    import topomatch.matching.deform as deform_module
+
     src, tgt, perm = pair
     m = make_matcher(
-        "deform", hypotheses=(("hks", 30, False), ("hks", 30, True)), n_samples=800, coarse_nodes=80, fine_nodes=200
+        "deform", hypotheses=(("hks", 30, False), ("hks", 30, True)), n_samples=800, coarse_nodes=80, fine_nodes=200, n_threads=2
     )
+    # the target's eigenbasis in a forked process (only for larger meshes by default)
+    monkeypatch.setattr(deform_module, "_BACKGROUND_MIN_VERTICES", 0)
+    jobs = []
+
+    def spy(mesh, k, **kw):
+        jobs.append(EigenbasisJob(mesh, k, kw.get("kind", "robust")))
+        jobs.append(jobs[-1]._process is not None)
+        return jobs[-2]
+
+    monkeypatch.setattr(TriangleMesh, "eigenbasis_in_background", spy)
+    tgt = TriangleMesh(tgt.vertices, tgt.faces)  # no eigenbasis yet
     c = m.match(src, tgt)
+    monkeypatch.undo()
+    assert len(jobs) == 2 and jobs[1] and jobs[0]._process is None  # forked, and waited for
     assert c.p2p_21.shape == (tgt.n_vertices,) and c.p2p_21.min() >= 0
     # Euclidean error on the (undeformed) source, relative to its size
     err = np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1) / np.sqrt(src.area)
@@ -197,9 +213,11 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair):
     assert c.info["hypothesis"] in c.info["residuals"]
     # the default rigid hypotheses were verified too (as given + four principal-axis frames)
     assert {"rigid as-given", "rigid axes +++", "rigid axes +--", "rigid axes -+-", "rigid axes --+"} <= set(c.info["residuals"])
-    # deterministic, and the same with the verification on one thread (not pipelined):
-    # same hypotheses in the same order, same residuals, same map
-    np.testing.assert_array_equal(m.match(src, tgt).p2p_21, c.p2p_21)
+    # deterministic, the same without the forked eigenbasis, and the same with the
+    # verification on one thread (not pipelined): same hypotheses in the same order,
+    # same residuals, same map
+    fresh = TriangleMesh(tgt.vertices, tgt.faces)
+    np.testing.assert_array_equal(m.match(src, fresh).p2p_21, c.p2p_21)
     c1 = m.set_params(n_threads=1).match(src, tgt)
     np.testing.assert_array_equal(c1.p2p_21, c.p2p_21)
     assert list(c1.info["residuals"].items()) == list(c.info["residuals"].items())

@@ -85,6 +85,31 @@ def test_eigenbasis_disk_cache(tmp_path, small_sphere, monkeypatch):
     np.testing.assert_allclose(third.evals, b.evals)
 
 
+def test_eigenbasis_in_background_is_the_same_basis(small_sphere):
+    here = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(15)
+    m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
+    job = m.eigenbasis_in_background(15)
+    assert job._process is not None  # a child computes it (Linux has fork)
+    b = job.result()
+    np.testing.assert_array_equal(b.evals, here.evals)
+    np.testing.assert_array_equal(b.evecs, here.evecs)
+    assert m._has_eigenbasis(15, "robust")  # adopted by the mesh: no second solve
+    assert m.eigenbasis_in_background(10)._process is None  # already there: nothing forked
+    np.testing.assert_array_equal(m.eigenbasis(10).evecs, here.evecs[:, :10])
+
+
+def test_eigenbasis_in_background_failure_recomputes_here(small_sphere, caplog):
+    m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
+    job = m.eigenbasis_in_background(10_000)  # the child fails: too many eigenpairs
+    with pytest.raises(ValueError, match="1 <= k"):  # the same error as computing it here
+        job.result()
+    assert "background eigenbasis failed" in caplog.text
+    abandoned = m.eigenbasis_in_background(12)
+    process = abandoned._process
+    del abandoned  # an abandoned job leaves no child behind
+    assert not process.is_alive()
+
+
 def test_unreferenced_vertex_gets_zero(small_sphere):
     v = np.vstack([small_sphere.vertices, [[3.0, 3, 3]]])
     m = TriangleMesh(v, small_sphere.faces)

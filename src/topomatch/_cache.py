@@ -56,6 +56,12 @@ def array_hash(*arrays: np.ndarray, extra: str = "") -> str:
     return h.hexdigest()
 
 
+def exists(kind: str, key: str) -> bool:
+    """Whether an entry is stored (``False`` when caching is off)."""
+    d = cache_dir()
+    return d is not None and (d / kind / f"{key}.npz").is_file()
+
+
 def load(kind: str, key: str) -> dict[str, np.ndarray] | None:
     """Load a cached entry or return ``None``."""
     d = cache_dir()

@@ -83,6 +83,7 @@ from topomatch.matching.base import Correspondence, Matcher
 from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
 from topomatch.mesh.geometry import axis_rotation, edges_with_counts, vertex_normals
+from topomatch.mesh.mesh import EigenbasisJob
 from topomatch.mesh.sampling import farthest_point_sampling
 from topomatch.typing import BoolArray, FloatArray, IndexArray
 
@@ -103,6 +104,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
+# below this size a fork costs more than the eigensolver it takes off this process
+_BACKGROUND_MIN_VERTICES = 3000
 _R = TypeVar("_R")
 
 
@@ -1000,18 +1003,28 @@ class DeformMatcher(Matcher):
         """``[fn(x) for x in items]``, on ``n_threads`` threads (the CPU count, at most 4, by default)."""
         return _thread_map(fn, items, self._n_threads())
 
-    def _setup(self, source: TriangleMesh, target: TriangleMesh) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph]:
-        """Check the pair; farthest-point samples of both shapes and the coarse graph (shared by every step)."""
+    def _setup(
+        self, source: TriangleMesh, target: TriangleMesh
+    ) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph, EigenbasisJob | None]:
+        """Check the pair; farthest-point samples of both shapes and the coarse graph (shared by every step).
+
+        With two or more threads the target's eigenbasis starts in a forked process
+        first (the eigensolver holds the GIL: computed here it would stall the
+        verification threads); ``None`` otherwise.
+        """
         for mesh in (source, target):
             if mesh.n_vertices <= self.k_zoomout:
                 raise ValueError(
                     f"deform: mesh {mesh.name or '(unnamed)'} has {mesh.n_vertices} vertices; the spectral hypotheses need more "
                     f"than k_zoomout = {self.k_zoomout} (set k_zoomout and the hypotheses' k lower for such small meshes)"
                 )
+        target_basis = None
+        if self._n_threads() > 1 and self.accept_residual <= 0 and target.n_vertices >= _BACKGROUND_MIN_VERTICES:
+            target_basis = target.eigenbasis_in_background(self.k_zoomout)
         s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0)
         s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0)
         graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices))
-        return (s1, s2), graph
+        return (s1, s2), graph, target_basis
 
     def verify_hypotheses(self, source: TriangleMesh, target: TriangleMesh) -> tuple[list[Hypothesis], list[RegistrationResult]]:
         """Steps 1-2: every hypothesis with its coarse registration (in the order tried).
@@ -1026,8 +1039,8 @@ class DeformMatcher(Matcher):
             selection criterion.
         """
         settings = self._check()
-        samples, graph = self._setup(source, target)
-        return self._verify(source, target, settings, samples, graph)
+        samples, graph, target_basis = self._setup(source, target)
+        return self._verify(source, target, settings, samples, graph, target_basis)
 
     def _verify(
         self,
@@ -1036,8 +1049,9 @@ class DeformMatcher(Matcher):
         settings: list[tuple[str, int, bool]],
         samples: tuple[IndexArray, IndexArray],
         graph: DeformationGraph,
+        target_basis: EigenbasisJob | None = None,
     ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
-        """:meth:`verify_hypotheses` on samples and a coarse graph from :meth:`_setup`."""
+        """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`."""
         s1, s2 = samples
         W = target.vertices
         Nt = target.vertex_normals
@@ -1088,6 +1102,8 @@ class DeformMatcher(Matcher):
         # threads competing with ours.
         with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=n) as pool:
             later = [(h, pool.submit(verify, h)) for h in extrinsic]
+            if target_basis is not None:  # waits without the GIL while the pool verifies
+                target_basis.result()
             first = [(h, pool.submit(verify, h)) for h in spectral]
             last = [(h, pool.submit(verify, h)) for h in others]
             done = first + later + last
@@ -1241,8 +1257,8 @@ class DeformMatcher(Matcher):
         """
         t0 = time.perf_counter()
         settings = self._check()
-        samples, graph = self._setup(source, target)
-        hyps, results = self._verify(source, target, settings, samples, graph)
+        samples, graph, target_basis = self._setup(source, target)
+        hyps, results = self._verify(source, target, settings, samples, graph, target_basis)
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
         with threadpool_limits(limits=1, user_api="blas"):

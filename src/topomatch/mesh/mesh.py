@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import multiprocessing
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -18,7 +19,7 @@ from topomatch.mesh.laplacian import LaplacianKind, laplacian
 from topomatch.mesh.spectral import Eigenbasis, laplacian_eigenbasis
 from topomatch.typing import BoolArray, FloatArray, IndexArray, PathType
 
-__all__ = ["TriangleMesh"]
+__all__ = ["EigenbasisJob", "TriangleMesh"]
 
 logger = logging.getLogger(__name__)
 
@@ -232,6 +233,38 @@ class TriangleMesh:
         self._eig[kind] = basis
         return basis.truncate(k)
 
+    def eigenbasis_in_background(self, k: int, *, kind: LaplacianKind = "robust") -> EigenbasisJob:
+        """Start :meth:`eigenbasis` in a forked process; ``.result()`` waits and caches it here.
+
+        The eigensolver (ARPACK and the Cholesky solves) holds the GIL, so a thread
+        computing it stalls every other Python thread; a child process does not. The
+        child computes exactly what :meth:`eigenbasis` would (same code, one BLAS
+        thread), so the result is the same bits. Computes in this process instead (at
+        ``result()``) where ``fork`` is unavailable, when the basis is already cached
+        (in memory or on disk), or if the child fails.
+
+        Parameters
+        ----------
+        k : int
+            Number of eigenpairs.
+        kind : str
+            Laplacian kind.
+
+        Returns
+        -------
+        EigenbasisJob
+        """
+        return EigenbasisJob(self, k, kind)
+
+    def _has_eigenbasis(self, k: int, kind: LaplacianKind) -> bool:
+        have = self._eig.get(kind)
+        return have is not None and have.k >= k
+
+    def _adopt_eigenbasis(self, basis: Eigenbasis, kind: LaplacianKind) -> None:
+        have = self._eig.get(kind)
+        if have is None or have.k < basis.k:
+            self._eig[kind] = basis
+
     def geodesic_solver(self, kind: GeodesicKind = "heat") -> GeodesicSolver:
         """A geodesic solver for this mesh, cached per kind."""
         key = f"_geo_{kind}"
@@ -255,3 +288,63 @@ class TriangleMesh:
     def mask_vertices_used(self) -> BoolArray:
         """Mask of vertices in at least one face, shape (n_vertices,)."""
         return geometry.referenced_vertices(self.n_vertices, self.faces)
+
+
+class EigenbasisJob:
+    """An eigenbasis being computed in a forked process (:meth:`TriangleMesh.eigenbasis_in_background`)."""
+
+    def __init__(self, mesh: TriangleMesh, k: int, kind: LaplacianKind) -> None:
+        self.mesh, self.k, self.kind = mesh, k, kind
+        self._process: Any = None
+        self._conn: Any = None
+        if mesh._has_eigenbasis(k, kind) or "fork" not in multiprocessing.get_all_start_methods():
+            return
+        if _cache.exists("eigen", _cache.array_hash(mesh.vertices, mesh.faces, extra=f"eig:{kind}")):
+            return  # loading beats forking
+        ctx = multiprocessing.get_context("fork")
+        receive, send = ctx.Pipe(duplex=False)
+        try:
+            process = ctx.Process(target=_eigenbasis_child, args=(mesh, k, kind, send), daemon=True)
+            process.start()
+        except OSError as err:  # out of processes or memory: compute it here later
+            logger.warning("%s: could not fork for the eigenbasis (%s); computing it in this process", mesh.name or "mesh", err)
+            receive.close()
+            return
+        finally:
+            send.close()
+        self._process, self._conn = process, receive
+
+    def result(self) -> Eigenbasis:
+        """The ``k`` eigenpairs (waits for the child; computes them here if it failed)."""
+        if self._process is not None:
+            process, conn = self._process, self._conn
+            self._process = self._conn = None
+            try:
+                status, payload = conn.recv()
+            except (EOFError, OSError) as err:
+                status, payload = "error", f"the child process ended without a result ({err!r})"
+            finally:
+                conn.close()
+                process.join()
+            if status == "ok":
+                self.mesh._adopt_eigenbasis(Eigenbasis(*payload), self.kind)
+            else:
+                logger.warning("%s: background eigenbasis failed (%s); computing it in this process", self.mesh.name or "mesh", payload)
+        return self.mesh.eigenbasis(self.k, kind=self.kind)
+
+    def __del__(self) -> None:  # an abandoned job: do not leave the child behind
+        process = getattr(self, "_process", None)
+        if process is not None:
+            self._conn.close()
+            process.kill()
+            process.join()
+
+
+def _eigenbasis_child(mesh: TriangleMesh, k: int, kind: LaplacianKind, conn: Any) -> None:
+    try:
+        b = mesh.eigenbasis(k, kind=kind)
+        conn.send(("ok", (b.evals, b.evecs, b.mass)))
+    except BaseException as err:  # reported to the parent, which recomputes
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+    finally:
+        conn.close()
