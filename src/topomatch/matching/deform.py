@@ -864,6 +864,11 @@ class DeformMatcher(Matcher):
         the GIL in their tree queries and array operations); ``None``: the CPU count,
         at most 4. The result does not depend on it. The verification ignores it when
         ``accept_residual > 0`` (the early exit needs them in order).
+    background_eigenbasis : bool
+        With two or more threads, compute the target's eigenbasis in a forked process
+        (:meth:`TriangleMesh.eigenbasis_in_background`; the eigensolver holds the GIL and
+        would stall the verification threads). Same result either way; ``False`` for
+        environments where forking is unwelcome.
     """
 
     name = "deform"
@@ -898,6 +903,7 @@ class DeformMatcher(Matcher):
         limb_judge: str = "coarse",
         limb_judge_iterations: int | None = None,
         n_threads: int | None = None,
+        background_eigenbasis: bool = True,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -926,6 +932,7 @@ class DeformMatcher(Matcher):
         self.limb_judge = limb_judge
         self.limb_judge_iterations = limb_judge_iterations
         self.n_threads = n_threads
+        self.background_eigenbasis = background_eigenbasis
 
     def _check(self) -> list[tuple[str, int, bool]]:
         settings = []
@@ -1019,7 +1026,12 @@ class DeformMatcher(Matcher):
                     f"than k_zoomout = {self.k_zoomout} (set k_zoomout and the hypotheses' k lower for such small meshes)"
                 )
         target_basis = None
-        if self._n_threads() > 1 and self.accept_residual <= 0 and target.n_vertices >= _BACKGROUND_MIN_VERTICES:
+        if (
+            self.background_eigenbasis
+            and self._n_threads() > 1
+            and self.accept_residual <= 0
+            and target.n_vertices >= _BACKGROUND_MIN_VERTICES
+        ):
             target_basis = target.eigenbasis_in_background(self.k_zoomout)
         s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0)
         s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0)
