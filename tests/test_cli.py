@@ -116,3 +116,12 @@ def test_match_through_a_template(tmp_path, capsys):
     # target vertex i is template vertex perm_t[i]; source vertex j is template vertex perm_s[j]
     expected = np.argsort(perm_s)[perm_t]
     assert np.mean(np.load(tmp_path / "m.npy") == expected) > 0.95
+
+
+def test_param_values_parse_like_python_and_shell_booleans():
+    from topomatch.cli.main import _parse_params
+
+    p = _parse_params(["deform.background_eigenbasis=false", "deform.k_zoomout=80", "n_threads=1", "fmap.note=abc"], ["deform", "fmap"])
+    assert p["deform"] == {"background_eigenbasis": False, "k_zoomout": 80, "n_threads": 1}
+    assert p["fmap"] == {"n_threads": 1, "note": "abc"}
+    assert _parse_params(["x.flag=True"])["x"]["flag"] is True

@@ -525,3 +525,9 @@ def test_limb_turns_judged_at_the_fine_level(builtin):
     assert short[0]["tried"] == fine[0]["tried"] and short[0]["fine_score"] != fine[0]["fine_score"]
     assert all(r["kept"] == (r["fine_score_after"] < r["fine_score"]) for r in short)
 
+
+
+def test_deform_background_eigenbasis_must_be_a_bool(pair):
+    src, tgt, _ = pair
+    with pytest.raises(ValueError, match="background_eigenbasis"):
+        make_matcher("deform", background_eigenbasis="false").match(src, tgt)

@@ -22,10 +22,13 @@ def _parse_params(items: Sequence[str], methods: Sequence[str] | None = None) ->
         if "=" not in item:
             raise SystemExit(f"error: --param expects KEY=VALUE or METHOD.KEY=VALUE, got {item!r}")
         key, raw = item.split("=", 1)
-        try:
-            value = ast.literal_eval(raw)
-        except (ValueError, SyntaxError):
-            value = raw
+        if raw.lower() in ("true", "false"):  # as typed in a shell; a string would be truthy
+            value: Any = raw.lower() == "true"
+        else:
+            try:
+                value = ast.literal_eval(raw)
+            except (ValueError, SyntaxError):
+                value = raw
         if "." in key:
             m, k = key.split(".", 1)
             out.setdefault(m, {})[k] = value

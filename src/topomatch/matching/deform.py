@@ -935,6 +935,8 @@ class DeformMatcher(Matcher):
         self.background_eigenbasis = background_eigenbasis
 
     def _check(self) -> list[tuple[str, int, bool]]:
+        if not isinstance(self.background_eigenbasis, (bool, np.bool_)):
+            raise ValueError(f"deform: background_eigenbasis must be True or False, got {self.background_eigenbasis!r}")
         settings = []
         for h in self.hypotheses:
             if len(h) != 3 or h[0] not in ("hks", "wks") or not isinstance(h[1], (int, np.integer)) or not 2 <= h[1] <= self.k_zoomout:
