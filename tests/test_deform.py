@@ -187,13 +187,17 @@ def test_swap_regions_takes_the_region_another_registration_got_right(pair):
 
 def test_deform_matcher_on_a_bent_shuffled_copy(pair, monkeypatch):
     import topomatch.matching.deform as deform_module
+    from topomatch import _cache
 
     src, tgt, perm = pair
     m = make_matcher(
         "deform", hypotheses=(("hks", 30, False), ("hks", 30, True)), n_samples=800, coarse_nodes=80, fine_nodes=200, n_threads=2
     )
-    # the target's eigenbasis in a forked process (only for larger meshes by default)
+    # the target's eigenbasis in a forked process (only for larger meshes by default; not
+    # when the disk cache holds it, as it may after other tests ran the command line)
     monkeypatch.setattr(deform_module, "_BACKGROUND_MIN_VERTICES", 0)
+    monkeypatch.setattr(_cache, "_CACHE_DIR", None)
+    monkeypatch.delenv("TOPOMATCH_CACHE_DIR", raising=False)
     jobs = []
 
     def spy(mesh, k, **kw):

@@ -85,7 +85,16 @@ def test_eigenbasis_disk_cache(tmp_path, small_sphere, monkeypatch):
     np.testing.assert_allclose(third.evals, b.evals)
 
 
-def test_eigenbasis_in_background_is_the_same_basis(small_sphere):
+@pytest.fixture
+def no_disk_cache(monkeypatch):
+    """Caching off (other tests may have turned it on): a cached basis is loaded, not forked for."""
+    from topomatch import _cache
+
+    monkeypatch.setattr(_cache, "_CACHE_DIR", None)
+    monkeypatch.delenv("TOPOMATCH_CACHE_DIR", raising=False)
+
+
+def test_eigenbasis_in_background_is_the_same_basis(small_sphere, no_disk_cache):
     here = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(15)
     m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
     job = m.eigenbasis_in_background(15)
@@ -98,7 +107,17 @@ def test_eigenbasis_in_background_is_the_same_basis(small_sphere):
     np.testing.assert_array_equal(m.eigenbasis(10).evecs, here.evecs[:, :10])
 
 
-def test_eigenbasis_in_background_failure_recomputes_here(small_sphere, caplog):
+def test_eigenbasis_in_background_loads_a_cached_basis(small_sphere, tmp_path, monkeypatch):
+    from topomatch import _cache
+
+    monkeypatch.setattr(_cache, "_CACHE_DIR", tmp_path)
+    first = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(12)  # stored
+    job = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis_in_background(12)
+    assert job._process is None  # loading beats forking
+    np.testing.assert_array_equal(job.result().evecs, first.evecs)
+
+
+def test_eigenbasis_in_background_failure_recomputes_here(small_sphere, caplog, no_disk_cache):
     m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
     job = m.eigenbasis_in_background(10_000)  # the child fails: too many eigenpairs
     with pytest.raises(ValueError, match="1 <= k"):  # the same error as computing it here
