@@ -1,8 +1,9 @@
 """Peak resident memory of the current process during a block of code (Linux /proc, else rusage).
 
-Child processes count with their private memory (what they add beyond the pages they
-share with this process after a fork): a matcher that forks a helper (the ``deform``
-matcher's background eigenbasis) is charged for it.
+Child processes started during the block count with their private memory (what they
+add beyond the pages they share with this process after a fork): a matcher that forks a
+helper (the ``deform`` matcher's background eigenbasis) is charged for it; children that
+were already running (an idle worker pool) are not.
 """
 
 from __future__ import annotations
@@ -25,23 +26,32 @@ def current_rss_mb() -> float:
         return float("nan")
 
 
-def children_private_mb() -> float:
-    """Private memory (``Private_Clean + Private_Dirty``) of this process's children, in MB (0 when unknown)."""
-    total = 0
+def child_pids() -> set[int]:
+    """Process ids of this process's children (empty where ``/proc`` does not list them)."""
+    pids: set[int] = set()
     for path in glob.glob("/proc/self/task/*/children"):
         try:
             with open(path) as fh:
-                pids = fh.read().split()
-        except OSError:
+                pids.update(int(p) for p in fh.read().split())
+        except (OSError, ValueError):
             continue
-        for pid in pids:
-            try:
-                with open(f"/proc/{pid}/smaps_rollup") as fh:
-                    for line in fh:
-                        if line.startswith(("Private_Clean:", "Private_Dirty:")):
-                            total += int(line.split()[1])  # kB
-            except (OSError, ValueError, IndexError):
-                continue  # the child ended meanwhile
+    return pids
+
+
+def children_private_mb(exclude: set[int] | frozenset[int] = frozenset()) -> float:
+    """Private memory (``Private_Clean + Private_Dirty``) of this process's children, in MB (0 when unknown).
+
+    Children whose ids are in ``exclude`` are left out.
+    """
+    total = 0
+    for pid in child_pids() - set(exclude):
+        try:
+            with open(f"/proc/{pid}/smaps_rollup") as fh:
+                for line in fh:
+                    if line.startswith(("Private_Clean:", "Private_Dirty:")):
+                        total += int(line.split()[1])  # kB
+        except (OSError, ValueError, IndexError):
+            continue  # the child ended meanwhile
     return total / 1e3
 
 
@@ -64,6 +74,7 @@ class PeakMemory:
 
     def __enter__(self) -> PeakMemory:
         self.peak_mb = current_rss_mb()
+        self._before = frozenset(child_pids())  # e.g. idle worker pools: not the block's
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
         return self
@@ -75,7 +86,7 @@ class PeakMemory:
         i, children = 0, 0.0
         while not self._stop.is_set():
             if i % every == 0:
-                children = children_private_mb()
+                children = children_private_mb(exclude=self._before)
             i += 1
             r = current_rss_mb() + children
             if r > self.peak_mb or self.peak_mb != self.peak_mb:
