@@ -107,6 +107,21 @@ def test_eigenbasis_in_background_is_the_same_basis(small_sphere, no_disk_cache)
     np.testing.assert_array_equal(m.eigenbasis(10).evecs, here.evecs[:, :10])
 
 
+def test_eigenbasis_in_background_not_beside_other_threads(small_sphere, no_disk_cache):
+    import threading
+
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)  # a caller's own (non-daemon) thread
+    other.start()
+    try:
+        job = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis_in_background(12)
+        assert job._process is None  # computed in this process, at result()
+        assert job.result().k == 12
+    finally:
+        stop.set()
+        other.join()
+
+
 def test_eigenbasis_in_background_loads_a_cached_basis(small_sphere, tmp_path, monkeypatch):
     from topomatch import _cache
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -241,7 +242,8 @@ class TriangleMesh:
         child computes exactly what :meth:`eigenbasis` would (same code, one BLAS
         thread), so the result is the same bits. Computes in this process instead (at
         ``result()``) where ``fork`` is unavailable, when the basis is already cached
-        (in memory or on disk), or if the child fails.
+        (in memory or on disk), when another non-daemon thread is running (it could
+        hold a lock at the fork that the child would wait for), or if the child fails.
 
         Parameters
         ----------
@@ -290,6 +292,11 @@ class TriangleMesh:
         return geometry.referenced_vertices(self.n_vertices, self.faces)
 
 
+# threads that only pass work between queues and pipes, never inside BLAS or the
+# allocator: joblib's (loky's) executor manager, left running after a Parallel call
+_FORK_SAFE_THREADS = frozenset({"ExecutorManagerThread"})
+
+
 class EigenbasisJob:
     """An eigenbasis being computed in a forked process (:meth:`TriangleMesh.eigenbasis_in_background`)."""
 
@@ -298,6 +305,11 @@ class EigenbasisJob:
         self._process: Any = None
         self._conn: Any = None
         if mesh._has_eigenbasis(k, kind) or "fork" not in multiprocessing.get_all_start_methods():
+            return
+        me = threading.current_thread()
+        if any(t is not me and not t.daemon and t.name not in _FORK_SAFE_THREADS for t in threading.enumerate()):
+            # another thread of the caller's may hold a lock (BLAS, allocator) at the
+            # fork, which the child would wait for forever: compute here instead
             return
         if _cache.exists("eigen", _cache.array_hash(mesh.vertices, mesh.faces, extra=f"eig:{kind}")):
             return  # loading beats forking
