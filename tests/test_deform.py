@@ -186,7 +186,7 @@ def test_swap_regions_takes_the_region_another_registration_got_right(pair):
 
 
 def test_deform_matcher_on_a_bent_shuffled_copy(pair, monkeypatch):
-    import topomatch.matching.deform as deform_module
+    import topomatch.mesh.mesh as mesh_module
     from topomatch import _cache
 
     src, tgt, perm = pair
@@ -195,7 +195,7 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair, monkeypatch):
     )
     # the target's eigenbasis in a forked process (only for larger meshes by default; not
     # when the disk cache holds it, as it may after other tests ran the command line)
-    monkeypatch.setattr(deform_module, "_BACKGROUND_MIN_VERTICES", 0)
+    monkeypatch.setattr(mesh_module, "BACKGROUND_MIN_VERTICES", 0)
     monkeypatch.setattr(_cache, "_CACHE_DIR", None)
     monkeypatch.delenv("TOPOMATCH_CACHE_DIR", raising=False)
     jobs = []

@@ -86,15 +86,18 @@ def test_eigenbasis_disk_cache(tmp_path, small_sphere, monkeypatch):
 
 
 @pytest.fixture
-def no_disk_cache(monkeypatch):
-    """Caching off (other tests may have turned it on): a cached basis is loaded, not forked for."""
+def fork_ready(monkeypatch):
+    """Forking for small meshes too (the test spheres are below the default size), and the
+    disk cache off (other tests may have turned it on: a cached basis is loaded, not forked for)."""
+    import topomatch.mesh.mesh as mesh_module
     from topomatch import _cache
 
     monkeypatch.setattr(_cache, "_CACHE_DIR", None)
     monkeypatch.delenv("TOPOMATCH_CACHE_DIR", raising=False)
+    monkeypatch.setattr(mesh_module, "BACKGROUND_MIN_VERTICES", 0)
 
 
-def test_eigenbasis_in_background_is_the_same_basis(small_sphere, no_disk_cache):
+def test_eigenbasis_in_background_is_the_same_basis(small_sphere, fork_ready):
     here = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(15)
     m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
     job = m.eigenbasis_in_background(15)
@@ -107,7 +110,7 @@ def test_eigenbasis_in_background_is_the_same_basis(small_sphere, no_disk_cache)
     np.testing.assert_array_equal(m.eigenbasis(10).evecs, here.evecs[:, :10])
 
 
-def test_eigenbasis_in_background_not_beside_other_threads(small_sphere, no_disk_cache):
+def test_eigenbasis_in_background_not_beside_other_threads(small_sphere, fork_ready):
     import threading
 
     stop = threading.Event()
@@ -123,8 +126,10 @@ def test_eigenbasis_in_background_not_beside_other_threads(small_sphere, no_disk
 
 
 def test_eigenbasis_in_background_loads_a_cached_basis(small_sphere, tmp_path, monkeypatch):
+    import topomatch.mesh.mesh as mesh_module
     from topomatch import _cache
 
+    monkeypatch.setattr(mesh_module, "BACKGROUND_MIN_VERTICES", 0)  # only the cache stops the fork
     monkeypatch.setattr(_cache, "_CACHE_DIR", tmp_path)
     first = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(12)  # stored
     job = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis_in_background(12)
@@ -132,7 +137,7 @@ def test_eigenbasis_in_background_loads_a_cached_basis(small_sphere, tmp_path, m
     np.testing.assert_array_equal(job.result().evecs, first.evecs)
 
 
-def test_eigenbasis_in_background_failure_recomputes_here(small_sphere, caplog, no_disk_cache):
+def test_eigenbasis_in_background_failure_recomputes_here(small_sphere, caplog, fork_ready):
     m = TriangleMesh(small_sphere.vertices, small_sphere.faces)
     job = m.eigenbasis_in_background(10_000)  # the child fails: too many eigenpairs
     with pytest.raises(ValueError, match="1 <= k"):  # the same error as computing it here

@@ -38,13 +38,13 @@ def child_pids() -> set[int]:
     return pids
 
 
-def children_private_mb(exclude: set[int] | frozenset[int] = frozenset()) -> float:
+def children_private_mb(exclude: frozenset[int] = frozenset()) -> float:
     """Private memory (``Private_Clean + Private_Dirty``) of this process's children, in MB (0 when unknown).
 
     Children whose ids are in ``exclude`` are left out.
     """
     total = 0
-    for pid in child_pids() - set(exclude):
+    for pid in child_pids() - exclude:
         try:
             with open(f"/proc/{pid}/smaps_rollup") as fh:
                 for line in fh:

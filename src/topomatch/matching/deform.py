@@ -104,8 +104,6 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
-# below this size a fork costs more than the eigensolver it takes off this process
-_BACKGROUND_MIN_VERTICES = 3000
 _R = TypeVar("_R")
 
 
@@ -1028,12 +1026,7 @@ class DeformMatcher(Matcher):
                     f"than k_zoomout = {self.k_zoomout} (set k_zoomout and the hypotheses' k lower for such small meshes)"
                 )
         target_basis = None
-        if (
-            self.background_eigenbasis
-            and self._n_threads() > 1
-            and self.accept_residual <= 0
-            and target.n_vertices >= _BACKGROUND_MIN_VERTICES
-        ):
+        if self.background_eigenbasis and self._n_threads() > 1 and self.accept_residual <= 0:
             target_basis = target.eigenbasis_in_background(self.k_zoomout)
         s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0)
         s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0)

@@ -220,10 +220,9 @@ class TriangleMesh:
         Computes ``max(k, largest computed so far)`` and slices; uses the disk cache
         when one is configured (see :mod:`topomatch._cache`).
         """
-        have = self._eig.get(kind)
-        if have is not None and have.k >= k:
-            return have.truncate(k)
-        key = _cache.array_hash(self.vertices, self.faces, extra=f"eig:{kind}")
+        if self._has_eigenbasis(k, kind):
+            return self._eig[kind].truncate(k)
+        key = self._eigenbasis_key(kind)
         stored = _cache.load("eigen", key)
         if stored is not None and stored["evals"].shape[0] >= k:
             basis = Eigenbasis(stored["evals"], stored["evecs"], stored["mass"])
@@ -241,9 +240,11 @@ class TriangleMesh:
         computing it stalls every other Python thread; a child process does not. The
         child computes exactly what :meth:`eigenbasis` would (same code, one BLAS
         thread), so the result is the same bits. Computes in this process instead (at
-        ``result()``) where ``fork`` is unavailable, when the basis is already cached
-        (in memory or on disk), when another non-daemon thread is running (it could
-        hold a lock at the fork that the child would wait for), or if the child fails.
+        ``result()``) where ``fork`` is unavailable, for meshes below
+        ``BACKGROUND_MIN_VERTICES`` (the fork would cost more than the solve), when the
+        basis is already cached (in memory or on disk), when another non-daemon thread
+        is running (it could hold a lock at the fork that the child would wait for), or
+        if the child fails.
 
         Parameters
         ----------
@@ -257,6 +258,10 @@ class TriangleMesh:
         EigenbasisJob
         """
         return EigenbasisJob(self, k, kind)
+
+    def _eigenbasis_key(self, kind: LaplacianKind) -> str:
+        """The disk cache's key of this mesh's eigenbasis."""
+        return _cache.array_hash(self.vertices, self.faces, extra=f"eig:{kind}")
 
     def _has_eigenbasis(self, k: int, kind: LaplacianKind) -> bool:
         have = self._eig.get(kind)
@@ -292,6 +297,8 @@ class TriangleMesh:
         return geometry.referenced_vertices(self.n_vertices, self.faces)
 
 
+# below this size a fork costs more than the eigensolver it takes off this process
+BACKGROUND_MIN_VERTICES = 3000
 # threads that only pass work between queues and pipes, never inside BLAS or the
 # allocator: joblib's (loky's) executor manager, left running after a Parallel call
 _FORK_SAFE_THREADS = frozenset({"ExecutorManagerThread"})
@@ -304,14 +311,18 @@ class EigenbasisJob:
         self.mesh, self.k, self.kind = mesh, k, kind
         self._process: Any = None
         self._conn: Any = None
-        if mesh._has_eigenbasis(k, kind) or "fork" not in multiprocessing.get_all_start_methods():
+        if (
+            mesh.n_vertices < BACKGROUND_MIN_VERTICES
+            or mesh._has_eigenbasis(k, kind)
+            or "fork" not in multiprocessing.get_all_start_methods()
+        ):
             return
         me = threading.current_thread()
         if any(t is not me and not t.daemon and t.name not in _FORK_SAFE_THREADS for t in threading.enumerate()):
             # another thread of the caller's may hold a lock (BLAS, allocator) at the
             # fork, which the child would wait for forever: compute here instead
             return
-        if _cache.exists("eigen", _cache.array_hash(mesh.vertices, mesh.faces, extra=f"eig:{kind}")):
+        if _cache.exists("eigen", mesh._eigenbasis_key(kind)):
             return  # loading beats forking
         ctx = multiprocessing.get_context("fork")
         receive, send = ctx.Pipe(duplex=False)
