@@ -125,6 +125,29 @@ def test_eigenbasis_in_background_not_beside_other_threads(small_sphere, fork_re
         other.join()
 
 
+def _background_job_in_daemon(vertices, faces, out):  # runs in a daemonic child process
+    import topomatch.mesh.mesh as mesh_module
+
+    mesh_module.BACKGROUND_MIN_VERTICES = 0
+    job = TriangleMesh(vertices, faces).eigenbasis_in_background(8)
+    out.put((job._process is None, job.result().k))
+
+
+def test_eigenbasis_in_background_not_in_a_daemonic_process(small_sphere, fork_ready):
+    # a daemonic multiprocessing child may not start processes (start() raises): computed there
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("fork")
+    out = ctx.Queue()
+    p = ctx.Process(target=_background_job_in_daemon, args=(small_sphere.vertices, small_sphere.faces, out), daemon=True)
+    p.start()
+    try:
+        assert out.get(timeout=60) == (True, 8)
+    finally:
+        p.join(timeout=60)
+    assert p.exitcode == 0
+
+
 def test_eigenbasis_in_background_loads_a_cached_basis(small_sphere, tmp_path, monkeypatch):
     import topomatch.mesh.mesh as mesh_module
     from topomatch import _cache

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -13,6 +12,7 @@ import numpy as np
 from scipy import sparse
 
 from topomatch import _cache
+from topomatch._fork import fork_is_safe
 from topomatch._validation import check_faces, check_vertices
 from topomatch.mesh import geometry
 from topomatch.mesh.geodesics import GeodesicKind, GeodesicSolver, make_geodesic_solver
@@ -299,9 +299,6 @@ class TriangleMesh:
 
 # below this size a fork costs more than the eigensolver it takes off this process
 BACKGROUND_MIN_VERTICES = 3000
-# threads that only pass work between queues and pipes, never inside BLAS or the
-# allocator: joblib's (loky's) executor manager, left running after a Parallel call
-_FORK_SAFE_THREADS = frozenset({"ExecutorManagerThread"})
 
 
 class EigenbasisJob:
@@ -311,16 +308,11 @@ class EigenbasisJob:
         self.mesh, self.k, self.kind = mesh, k, kind
         self._process: Any = None
         self._conn: Any = None
-        if (
-            mesh.n_vertices < BACKGROUND_MIN_VERTICES
-            or mesh._has_eigenbasis(k, kind)
-            or "fork" not in multiprocessing.get_all_start_methods()
-        ):
+        if mesh.n_vertices < BACKGROUND_MIN_VERTICES or mesh._has_eigenbasis(k, kind):
             return
-        me = threading.current_thread()
-        if any(t is not me and not t.daemon and t.name not in _FORK_SAFE_THREADS for t in threading.enumerate()):
-            # another thread of the caller's may hold a lock (BLAS, allocator) at the
-            # fork, which the child would wait for forever: compute here instead
+        if not fork_is_safe():
+            # e.g. another thread of the caller's may hold a lock (BLAS, allocator) at
+            # the fork, which the child would wait for forever: compute here instead
             return
         if _cache.exists("eigen", mesh._eigenbasis_key(kind)):
             return  # loading beats forking
