@@ -535,3 +535,74 @@ def test_deform_background_eigenbasis_must_be_a_bool(pair):
     src, tgt, _ = pair
     with pytest.raises(ValueError, match="background_eigenbasis"):
         make_matcher("deform", background_eigenbasis="false").match(src, tgt)
+
+
+def test_feature_pairs_without_features_are_nearest_positions():
+    from topomatch.deform.register import feature_pairs
+
+    rng = np.random.default_rng(1)
+    X, Y = rng.normal(size=(200, 3)), rng.normal(size=(150, 3))
+    NX, NY = np.tile([0.0, 0.0, 1.0], (200, 1)), np.tile([0.0, 0.0, 1.0], (150, 1))
+    NY[:10] *= -1  # incompatible normals: those pairs are dropped
+    pts = np.c_[Y, np.zeros((150, 2))]
+    p = feature_pairs(X, NX, Y, NY, np.zeros((200, 2)), pts, cKDTree(pts), sigma=0.5)
+    j = cKDTree(Y).query(X)[1]
+    i = cKDTree(X).query(Y)[1]
+    fwd = np.flatnonzero(j >= 10)  # forward pairs whose target normal agrees
+    np.testing.assert_array_equal(p.source, np.r_[fwd, i[10:]])
+    np.testing.assert_array_equal(p.points, np.r_[Y[j[fwd]], Y[10:]])
+    d = np.linalg.norm(X[fwd] - Y[j[fwd]], axis=1)
+    np.testing.assert_allclose(p.weights[: len(fwd)], 1 / (1 + (d / 0.5) ** 2))
+
+
+def test_features_stop_a_registration_sliding():
+    # a sphere onto itself turned about z: positions alone cannot tell the turn (the
+    # surfaces already coincide), a feature that follows the points can
+    src = icosphere(3)
+    V, F = src.vertices, src.faces
+    a = 0.3
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    W = V @ R.T  # target vertex i is source vertex i turned
+    f = np.c_[V[:, 0], V[:, 1]]  # a feature of each point: where it was before the turn
+    graph = build_deformation_graph(V, F, 60)
+    plain = RegistrationSchedule(n_nodes=60, fit_iterations=0, icp_iterations=15, alpha_icp=(0.5, 0.1), sigma_icp=(0.1, 0.05))
+    joint = RegistrationSchedule(**{**plain.__dict__, "feature_weight": (0.5, 0.5)})
+    error = {}
+    for name, sched, feats in (("plain", plain, None), ("features", joint, (f, f))):
+        r = register(V, F, W, F, None, sched, graph=graph, start=V, features=feats)
+        p = cKDTree(r.deformed).query(W)[1]  # target vertex -> source vertex
+        error[name] = float(np.mean(np.linalg.norm(V[p] - V, axis=1)))
+    assert error["plain"] > 0.2  # stays turned (0.3 rad: about 0.23 on average): the map is off by the turn
+    assert error["features"] < 0.3 * error["plain"], error
+    with pytest.raises(ValueError, match="needs features"):
+        register(V, F, W, F, None, joint, graph=graph, start=V)
+    with pytest.raises(ValueError, match=r"shapes \(642, d\) and \(642, d\)"):
+        register(V, F, W, F, None, joint, graph=graph, start=V, features=(f, f[:, :1]))
+    with pytest.raises(ValueError, match="feature_weight"):
+        register(V, F, W, F, None, RegistrationSchedule(**{**plain.__dict__, "feature_weight": (0.5, -1.0)}), graph=graph, start=V)
+
+
+def test_local_wks_features(pair):
+    from topomatch.matching.deform import local_wks_features
+
+    src, tgt, perm = pair
+    fs, ft = local_wks_features(src, tgt, k=40, n_energies=20, first=10, n_components=4)
+    assert fs.shape == (src.n_vertices, 4) and ft.shape == (tgt.n_vertices, 4)
+    np.testing.assert_allclose(fs.mean(axis=0), 0, atol=1e-12)
+    np.testing.assert_allclose(np.mean(np.sum(fs**2, axis=1)), 1.0)
+    same_s, same_t = local_wks_features(src, src, k=40, n_energies=20, first=10, n_components=4)
+    np.testing.assert_array_equal(same_s, same_t)  # one shape twice: the same features
+    # a near-isometric copy: corresponding points have near features (against random pairs)
+    near = np.mean(np.linalg.norm(ft - fs[perm], axis=1))
+    rand = np.mean(np.linalg.norm(ft - fs[np.random.default_rng(0).permutation(perm)], axis=1))
+    assert near < 0.5 * rand
+    with pytest.raises(ValueError, match="first < n_energies"):
+        local_wks_features(src, tgt, n_energies=20, first=20)
+
+
+def test_deform_feature_stage_parameters(pair):
+    src, tgt, _ = pair
+    with pytest.raises(ValueError, match="feature_icp_iterations"):
+        make_matcher("deform", feature_icp_iterations=-1).match(src, tgt)
+    with pytest.raises(ValueError, match="feature_weight"):
+        make_matcher("deform", feature_weight=float("nan")).match(src, tgt)

@@ -45,6 +45,7 @@ __all__ = [
     "RegistrationResult",
     "RegistrationSchedule",
     "closest_pairs",
+    "feature_pairs",
     "fit_residual",
     "nearest_compatible",
     "register",
@@ -706,6 +707,65 @@ def closest_pairs(
     return DataPairs(out.source[keep], out.points[keep], out.normals[keep], out.weights[keep])
 
 
+def feature_pairs(
+    deformed: FloatArray,
+    deformed_normals: FloatArray,
+    target_vertices: FloatArray,
+    target_normals: FloatArray,
+    source_features: FloatArray,
+    target_points: FloatArray,
+    target_tree: cKDTree,
+    *,
+    sigma: float,
+    min_cos: float = 0.3,
+    pool: Executor | None = None,
+) -> DataPairs:
+    """ICP pairs in both directions, nearest in positions *and* features.
+
+    Each deformed source vertex is paired with the target vertex nearest to it in the
+    joint space ``[position, scaled feature]`` and each target vertex with the
+    nearest deformed source vertex there, so that a feature that tells places apart
+    (a local shape descriptor) stops the surfaces sliding along each other where the
+    positions alone cannot (a limb turned about its own axis). Weights as in
+    :func:`closest_pairs` from the *positional* distance; a pair whose normals differ
+    by more than ``min_cos`` gets weight zero (no search for a compatible one).
+
+    Parameters
+    ----------
+    deformed, deformed_normals : ndarray, shape (n1, 3)
+    target_vertices, target_normals : ndarray, shape (n2, 3)
+    source_features : ndarray, shape (n1, d)
+        Already scaled to lengths.
+    target_points : ndarray, shape (n2, 3 + d)
+        ``[target_vertices, scaled target features]``.
+    target_tree : cKDTree
+        Built on ``target_points``.
+    sigma, min_cos : float
+    pool : Executor, optional
+        Runs the backward search beside the forward one.
+    """
+    joint = np.c_[deformed, source_features]
+
+    def backward() -> tuple[IndexArray, FloatArray]:
+        i = cKDTree(joint).query(target_points)[1]
+        return i, np.linalg.norm(target_vertices - deformed[i], axis=1)
+
+    later = pool.submit(backward) if pool is not None else None
+    j = target_tree.query(joint)[1]
+    d = np.linalg.norm(deformed - target_vertices[j], axis=1)
+    i, d2 = later.result() if later is not None else backward()
+    cos = np.einsum("pc,pc->p", deformed_normals, target_normals[j])
+    cos2 = np.einsum("pc,pc->p", target_normals, deformed_normals[i])
+    w = np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
+    w2 = np.where(cos2 >= min_cos, 1.0 / (1.0 + (d2 / sigma) ** 2), 0.0)
+    out = DataPairs.concat(
+        DataPairs(np.arange(len(deformed)), target_vertices[j], target_normals[j], w),
+        DataPairs(i, target_vertices, target_normals, w2),
+    )
+    keep = out.weights > 0
+    return DataPairs(out.source[keep], out.points[keep], out.normals[keep], out.weights[keep])
+
+
 @dataclass(frozen=True)
 class RegistrationSchedule:
     """How a registration runs: graph size, iterations, stiffness and robust scales.
@@ -731,6 +791,11 @@ class RegistrationSchedule:
         Weights of the point-to-point and point-to-plane terms in the closest-point phase.
     min_cos : float
         Minimum cosine between normals for a closest-point pair.
+    feature_weight : tuple of float
+        With ``features`` given to :func:`register`: the closest-point pairs are
+        nearest in ``[position, w * sqrt(source area) * feature]`` (:func:`feature_pairs`,
+        all vertices, no sampling), ``w`` going linearly from ``feature_weight[0]`` to
+        ``feature_weight[1]`` over the iterations; ``(0, 0)``: positions only.
     """
 
     n_nodes: int = 300
@@ -744,6 +809,7 @@ class RegistrationSchedule:
     mu_point: float = 0.1
     mu_plane: float = 1.0
     min_cos: float = 0.3
+    feature_weight: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass
@@ -817,6 +883,25 @@ def _geometric(a: tuple[float, float], t: float) -> float:
     return float(a[0] * (a[1] / a[0]) ** t) if a[0] > 0 else 0.0
 
 
+def _checked_features(
+    schedule: RegistrationSchedule, features: tuple[FloatArray, FloatArray] | None, n1: int, n2: int
+) -> tuple[FloatArray, FloatArray] | None:
+    """The features for a schedule with a non-zero ``feature_weight`` (checked), else ``None``."""
+    w = tuple(schedule.feature_weight)
+    if len(w) != 2 or not all(np.isfinite(x) and x >= 0 for x in w):
+        raise ValueError(f"feature_weight must be two finite numbers >= 0, got {schedule.feature_weight!r}")
+    if max(w) == 0:
+        return None
+    if features is None:
+        raise ValueError("register: feature_weight > 0 needs features=(source_features, target_features)")
+    f1, f2 = (np.asarray(f, dtype=np.float64) for f in features)
+    if f1.ndim != 2 or f2.ndim != 2 or f1.shape[0] != n1 or f2.shape[0] != n2 or f1.shape[1] != f2.shape[1]:
+        raise ValueError(f"register: features must have shapes ({n1}, d) and ({n2}, d), got {f1.shape} and {f2.shape}")
+    if not (np.isfinite(f1).all() and np.isfinite(f2).all()):
+        raise ValueError("register: features must be finite")
+    return f1, f2
+
+
 def register(
     source_vertices: FloatArray,
     source_faces: IndexArray,
@@ -830,6 +915,7 @@ def register(
     samples: tuple[IndexArray, IndexArray] | None = None,
     cap: float = 0.05,
     n_threads: int = 1,
+    features: tuple[FloatArray, FloatArray] | None = None,
 ) -> RegistrationResult:
     """Deform the source onto the target: correspondence fit, then closest-point ICP.
 
@@ -856,6 +942,9 @@ def register(
     n_threads : int
         With 2 or more, each closest-point iteration searches both directions side by
         side (for a registration that has the machine to itself; the result is the same).
+    features : pair of ndarray, optional
+        Per-vertex features of the source, shape (n1, d), and of the target, shape
+        (n2, d), for ``schedule.feature_weight > 0`` (required then).
 
     Returns
     -------
@@ -902,17 +991,26 @@ def register(
         tgt_s = farthest_point_sampling(min(schedule.n_samples, len(W)), points=W, first=0)
     tree = _search_tree(W)
     stree: PointTree | None = None  # on the deformed source
+    feats = _checked_features(schedule, features, len(V), len(W))
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(schedule.icp_iterations):
             t = it / max(schedule.icp_iterations - 1, 1)
             Vd = D.deformed()
             Nd = vertex_normals(Vd, F)
-            # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
-            stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
-            pairs = closest_pairs(
-                Vd, Nd, W, Nt, tree, sigma=scale * _geometric(schedule.sigma_icp, t), min_cos=schedule.min_cos,
-                source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
-            )
+            sigma = scale * _geometric(schedule.sigma_icp, t)
+            if feats is not None:
+                w = scale * (schedule.feature_weight[0] + (schedule.feature_weight[1] - schedule.feature_weight[0]) * t)
+                target_points = np.c_[W, w * feats[1]]
+                pairs = feature_pairs(
+                    Vd, Nd, W, Nt, w * feats[0], target_points, cKDTree(target_points), sigma=sigma, min_cos=schedule.min_cos, pool=pool,
+                )
+            else:
+                # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
+                stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
+                pairs = closest_pairs(
+                    Vd, Nd, W, Nt, tree, sigma=sigma, min_cos=schedule.min_cos,
+                    source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
+                )
             D.update_rotations(pairs)
             D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)
     Vd = D.deformed()
