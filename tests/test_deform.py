@@ -580,6 +580,8 @@ def test_features_stop_a_registration_sliding():
         register(V, F, W, F, None, joint, graph=graph, start=V, features=(f, f[:, :1]))
     with pytest.raises(ValueError, match="feature_weight"):
         register(V, F, W, F, None, RegistrationSchedule(**{**plain.__dict__, "feature_weight": (0.5, -1.0)}), graph=graph, start=V)
+    with pytest.raises(ValueError, match="two finite numbers"):  # a single number: start and end needed
+        register(V, F, W, F, None, RegistrationSchedule(**{**plain.__dict__, "feature_weight": 0.5}), graph=graph, start=V, features=(f, f))
 
 
 def test_local_wks_features(pair):

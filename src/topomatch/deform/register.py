@@ -887,8 +887,8 @@ def _checked_features(
     schedule: RegistrationSchedule, features: tuple[FloatArray, FloatArray] | None, n1: int, n2: int
 ) -> tuple[FloatArray, FloatArray] | None:
     """The features for a schedule with a non-zero ``feature_weight`` (checked), else ``None``."""
-    w = tuple(schedule.feature_weight)
-    if len(w) != 2 or not all(np.isfinite(x) and x >= 0 for x in w):
+    w = schedule.feature_weight
+    if not isinstance(w, (tuple, list)) or len(w) != 2 or not all(np.isfinite(x) and x >= 0 for x in w):
         raise ValueError(f"feature_weight must be two finite numbers >= 0, got {schedule.feature_weight!r}")
     if max(w) == 0:
         return None
