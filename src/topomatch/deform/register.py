@@ -90,6 +90,17 @@ class DataPairs:
             np.concatenate([p.weights for p in pairs]),
         )
 
+    def weighted(self) -> DataPairs:
+        """The pairs with a positive weight."""
+        keep = self.weights > 0
+        return DataPairs(self.source[keep], self.points[keep], self.normals[keep], self.weights[keep])
+
+
+def _robust_weights(normals: FloatArray, other_normals: FloatArray, d: FloatArray, sigma: float, min_cos: float) -> FloatArray:
+    """``1 / (1 + (d / sigma)^2)`` where the two normals agree (cosine >= ``min_cos``), else 0; shape (p,)."""
+    cos = np.einsum("pc,pc->p", normals, other_normals)
+    return np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
+
 
 def _procrustes(S: FloatArray) -> FloatArray:
     """Rotations ``R`` maximising ``tr(R S)`` for a stack ``S`` of shape (m, 3, 3).
@@ -688,23 +699,18 @@ def closest_pairs(
         tgt = np.arange(len(target_vertices)) if target_subset is None else np.asarray(target_subset)
         stree = _search_tree(deformed) if source_tree is None else source_tree
         i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
-        cos2 = np.einsum("pc,pc->p", target_normals[tgt], deformed_normals[i])
-        w2 = np.where(cos2 >= min_cos, 1.0 / (1.0 + (d2 / sigma) ** 2), 0.0)
+        w2 = _robust_weights(target_normals[tgt], deformed_normals[i], d2, sigma, min_cos)
         return DataPairs(i, target_vertices[tgt], target_normals[tgt], w2)
 
     later = pool.submit(backward_pairs) if backward and pool is not None else None
     src = np.arange(len(deformed)) if source_subset is None else np.asarray(source_subset)
     j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos)
-    cos = np.einsum("pc,pc->p", deformed_normals[src], target_normals[j])
-    w = np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
-    parts = [DataPairs(src, target_vertices[j], target_normals[j], w)]
+    parts = [DataPairs(src, target_vertices[j], target_normals[j], _robust_weights(deformed_normals[src], target_normals[j], d, sigma, min_cos))]
     if later is not None:
         parts.append(later.result())
     elif backward:
         parts.append(backward_pairs())
-    out = DataPairs.concat(*parts)
-    keep = out.weights > 0
-    return DataPairs(out.source[keep], out.points[keep], out.normals[keep], out.weights[keep])
+    return DataPairs.concat(*parts).weighted()
 
 
 def feature_pairs(
@@ -754,16 +760,10 @@ def feature_pairs(
     j = target_tree.query(joint)[1]
     d = np.linalg.norm(deformed - target_vertices[j], axis=1)
     i, d2 = later.result() if later is not None else backward()
-    cos = np.einsum("pc,pc->p", deformed_normals, target_normals[j])
-    cos2 = np.einsum("pc,pc->p", target_normals, deformed_normals[i])
-    w = np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
-    w2 = np.where(cos2 >= min_cos, 1.0 / (1.0 + (d2 / sigma) ** 2), 0.0)
-    out = DataPairs.concat(
-        DataPairs(np.arange(len(deformed)), target_vertices[j], target_normals[j], w),
-        DataPairs(i, target_vertices, target_normals, w2),
-    )
-    keep = out.weights > 0
-    return DataPairs(out.source[keep], out.points[keep], out.normals[keep], out.weights[keep])
+    return DataPairs.concat(
+        DataPairs(np.arange(len(deformed)), target_vertices[j], target_normals[j], _robust_weights(deformed_normals, target_normals[j], d, sigma, min_cos)),
+        DataPairs(i, target_vertices, target_normals, _robust_weights(target_normals, deformed_normals[i], d2, sigma, min_cos)),
+    ).weighted()
 
 
 @dataclass(frozen=True)
@@ -992,6 +992,7 @@ def register(
     tree = _search_tree(W)
     stree: PointTree | None = None  # on the deformed source
     feats = _checked_features(schedule, features, len(V), len(W))
+    joint: tuple[float, FloatArray, cKDTree] | None = None  # (weight, target's joint points, their tree)
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(schedule.icp_iterations):
             t = it / max(schedule.icp_iterations - 1, 1)
@@ -1000,10 +1001,10 @@ def register(
             sigma = scale * _geometric(schedule.sigma_icp, t)
             if feats is not None:
                 w = scale * (schedule.feature_weight[0] + (schedule.feature_weight[1] - schedule.feature_weight[0]) * t)
-                target_points = np.c_[W, w * feats[1]]
-                pairs = feature_pairs(
-                    Vd, Nd, W, Nt, w * feats[0], target_points, cKDTree(target_points), sigma=sigma, min_cos=schedule.min_cos, pool=pool,
-                )
+                if joint is None or joint[0] != w:  # the target's tree changes only with the weight
+                    points = np.c_[W, w * feats[1]]
+                    joint = (w, points, cKDTree(points))
+                pairs = feature_pairs(Vd, Nd, W, Nt, w * feats[0], joint[1], joint[2], sigma=sigma, min_cos=schedule.min_cos, pool=pool)
             else:
                 # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
                 stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
