@@ -1,4 +1,4 @@
-"""The registration's k-d tree (deform.kdtree) against brute force and scipy's cKDTree."""
+"""The registration's k-d trees (deform.kdtree) against brute force and scipy's cKDTree."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from topomatch.datasets.toy import icosphere
-from topomatch.deform.kdtree import PointTree
+from topomatch.deform.kdtree import JointTree, PointTree
 from topomatch.deform.register import nearest_compatible
 
 
@@ -85,3 +85,44 @@ def test_point_tree_rejects_bad_input():
         tree.nearest_compatible(np.zeros((2, 3)), np.zeros((3, 3)), np.zeros((4, 3)))
     with pytest.raises(ValueError, match="reference normals"):
         tree.nearest_compatible(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize("n, dim", [(1, 1), (7, 2), (400, 3), (3000, 8), (2000, 13)])
+def test_joint_tree_equals_brute_force(n, dim):
+    rng = np.random.default_rng(n + dim)
+    P = rng.standard_normal((n, dim)) * np.linspace(2.0, 0.1, dim)  # uneven extents: splits along several axes
+    Q = np.r_[rng.standard_normal((300, dim)), 10 * rng.standard_normal((20, dim))]
+    dist, idx = JointTree(P).query(Q)
+    D = np.linalg.norm(Q[:, None] - P[None], axis=-1)
+    np.testing.assert_array_equal(idx, np.argmin(D, axis=1))
+    np.testing.assert_allclose(dist, D.min(axis=1), rtol=1e-12, atol=1e-12)
+
+
+def test_joint_tree_refit_stays_exact():
+    """The feature stage's use: positions deform and the feature columns shrink towards 0."""
+    mesh = icosphere(3)
+    rng = np.random.default_rng(1)
+    feats = rng.standard_normal((mesh.n_vertices, 5))
+    tree = JointTree(np.c_[mesh.vertices, 0.5 * feats])
+    Q = np.c_[rng.standard_normal((500, 3)), 0.3 * rng.standard_normal((500, 5))]
+    for step, w in enumerate((0.5, 0.3, 0.1, 0.0)):
+        moved = mesh.vertices * [1.0 + step, 1.0, 1.0 / (1 + step)] + 0.1 * step * rng.standard_normal(mesh.vertices.shape)
+        P = np.c_[moved, w * feats]
+        dist, idx = tree.refit(P).query(Q)
+        ref_d, ref_i = cKDTree(P).query(Q)
+        np.testing.assert_allclose(dist, ref_d, rtol=1e-12)
+        np.testing.assert_array_equal(idx, ref_i)
+
+
+def test_joint_tree_rejects_bad_input():
+    with pytest.raises(ValueError, match="no points"):
+        JointTree(np.zeros((0, 4)))
+    with pytest.raises(ValueError, match="finite"):
+        JointTree(np.array([[0.0, np.inf]]))
+    with pytest.raises(ValueError, match="shape"):
+        JointTree(np.zeros(4))
+    tree = JointTree(np.zeros((4, 6)))
+    with pytest.raises(ValueError, match=r"shape \(n, 6\)"):
+        tree.query(np.zeros((2, 5)))
+    with pytest.raises(ValueError, match="expected 4 points"):
+        tree.refit(np.zeros((5, 6)))

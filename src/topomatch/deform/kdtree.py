@@ -26,7 +26,7 @@ import numpy as np
 
 from topomatch.typing import FloatArray, IndexArray
 
-__all__ = ["PointTree"]
+__all__ = ["JointTree", "PointTree"]
 
 _LEAF_SIZE = 12
 
@@ -314,3 +314,197 @@ class PointTree:
         Q = _points(points, "points")
         idx, dist = self.nearest_compatible(Q, np.zeros_like(Q), np.zeros((self.n, 3)), k=1)
         return dist, idx
+
+
+# --- any dimension: the feature stage's joint [position, feature] searches ---------------
+
+
+@numba.njit(cache=True, nogil=True)
+def _refit_nd(P, perm, lo, hi, left, bmin, bmax):  # pragma: no cover - compiled
+    """:func:`_refit` for points of any dimension."""
+    dims = P.shape[1]
+    for node in range(len(lo) - 1, -1, -1):
+        if left[node] < 0:
+            for d in range(dims):
+                mn = np.inf
+                mx = -np.inf
+                for i in range(lo[node], hi[node]):
+                    v = P[perm[i], d]
+                    mn = min(mn, v)
+                    mx = max(mx, v)
+                bmin[node, d] = mn
+                bmax[node, d] = mx
+        else:
+            a = left[node]
+            for d in range(dims):
+                bmin[node, d] = min(bmin[a, d], bmin[a + 1, d])
+                bmax[node, d] = max(bmax[a, d], bmax[a + 1, d])
+
+
+@numba.njit(cache=True, nogil=True)
+def _build_nd(P, leaf):  # pragma: no cover - compiled
+    """:func:`_build` for points of any dimension."""
+    n, dims = P.shape
+    perm = np.arange(n)
+    max_nodes = 2 * (n // max(leaf // 2, 1) + 1) + 1
+    lo = np.empty(max_nodes, np.int64)
+    hi = np.empty(max_nodes, np.int64)
+    left = np.full(max_nodes, -1, np.int64)
+    bmin = np.empty((max_nodes, dims))
+    bmax = np.empty((max_nodes, dims))
+    stack = np.empty(max_nodes, np.int64)
+    keys = np.empty(n)
+    for d in range(dims):
+        bmin[0, d] = P[:, d].min()
+        bmax[0, d] = P[:, d].max()
+    lo[0] = 0
+    hi[0] = n
+    n_nodes = 1
+    sp = 1
+    stack[0] = 0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        a, b = lo[node], hi[node]
+        if b - a <= leaf:
+            continue
+        dim = 0
+        for d in range(1, dims):
+            if bmax[node, d] - bmin[node, d] > bmax[node, dim] - bmin[node, dim]:
+                dim = d
+        mid = (a + b) // 2
+        _select(P, perm, keys, a, b - 1, mid, dim)
+        cut = P[perm[mid], dim]
+        c = n_nodes
+        n_nodes += 2
+        lo[c], hi[c], lo[c + 1], hi[c + 1] = a, mid, mid, b
+        left[node] = c
+        for d in range(dims):
+            bmin[c, d] = bmin[node, d]
+            bmax[c, d] = bmax[node, d]
+            bmin[c + 1, d] = bmin[node, d]
+            bmax[c + 1, d] = bmax[node, d]
+        bmax[c, dim] = cut
+        bmin[c + 1, dim] = cut
+        stack[sp] = c + 1
+        stack[sp + 1] = c
+        sp += 2
+    lo, hi, left = lo[:n_nodes].copy(), hi[:n_nodes].copy(), left[:n_nodes].copy()
+    bmin, bmax = bmin[:n_nodes].copy(), bmax[:n_nodes].copy()
+    _refit_nd(P, perm, lo, hi, left, bmin, bmax)
+    return perm, lo, hi, left, bmin, bmax
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_nd(Ps, perm, lo, hi, left, bmin, bmax, Q, out_i, out_d):  # pragma: no cover - compiled
+    """Nearest point of each query row (any dimension); ties go to the first leaf reached."""
+    dims = Ps.shape[1]
+    stack_n = np.empty(2 * len(lo) + 2, np.int64)
+    stack_d = np.empty(2 * len(lo) + 2)
+    for q in range(Q.shape[0]):
+        best = np.inf
+        best_i = -1
+        stack_n[0] = 0
+        stack_d[0] = 0.0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack_n[sp]
+            if stack_d[sp] >= best:
+                continue
+            if left[node] < 0:
+                for i in range(lo[node], hi[node]):
+                    d2 = 0.0
+                    for d in range(dims):
+                        t = Ps[i, d] - Q[q, d]
+                        d2 += t * t
+                        if d2 >= best:
+                            break
+                    if d2 < best:
+                        best = d2
+                        best_i = perm[i]
+                continue
+            a = left[node]
+            da = 0.0
+            db = 0.0
+            for d in range(dims):
+                x = Q[q, d]
+                t = max(bmin[a, d] - x, x - bmax[a, d], 0.0)
+                da += t * t
+                t = max(bmin[a + 1, d] - x, x - bmax[a + 1, d], 0.0)
+                db += t * t
+            if da <= db:
+                near, d_near, far, d_far = a, da, a + 1, db
+            else:
+                near, d_near, far, d_far = a + 1, db, a, da
+            if d_far < best:
+                stack_n[sp] = far
+                stack_d[sp] = d_far
+                sp += 1
+            if d_near < best:
+                stack_n[sp] = near
+                stack_d[sp] = d_near
+                sp += 1
+        out_i[q] = best_i
+        out_d[q] = np.sqrt(best)
+
+
+class JointTree:
+    """Exact nearest-point queries among fixed-count points of any dimension.
+
+    The feature stage of the registration pairs points nearest in ``[position,
+    scaled feature]`` (:func:`topomatch.deform.register.feature_pairs`); both its
+    point sets change every iteration (the source deforms, the feature weight falls), so
+    the tree is refitted (boxes recomputed, O(n)) rather than rebuilt, as
+    :class:`PointTree` is for positions. Answers are exact for any refitted positions;
+    they equal scipy's ``cKDTree.query(points, k=1)`` up to exact ties.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, d)
+        Reference points (at least one, finite).
+    """
+
+    def __init__(self, points: FloatArray) -> None:
+        P = self._checked(points, None)
+        if len(P) == 0:
+            raise ValueError("JointTree: no points")
+        self.n, self.dim = P.shape
+        self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax = _build_nd(P, _LEAF_SIZE)
+        self._sorted = np.ascontiguousarray(P[self._perm])
+
+    def _checked(self, points: FloatArray, dim: int | None) -> np.ndarray:
+        a = np.ascontiguousarray(points, dtype=np.float64)
+        if a.ndim != 2 or a.shape[1] < 1 or (dim is not None and a.shape[1] != dim):
+            want = "(n, d)" if dim is None else f"(n, {dim})"
+            raise ValueError(f"JointTree: points must have shape {want}, got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError("JointTree: points must be finite")
+        return a
+
+    def refit(self, points: FloatArray) -> JointTree:
+        """Move the reference points (same count, order and dimension); the structure is kept."""
+        P = self._checked(points, self.dim)
+        if len(P) != self.n:
+            raise ValueError(f"JointTree.refit: expected {self.n} points, got {len(P)}")
+        _refit_nd(P, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax)
+        self._sorted = np.ascontiguousarray(P[self._perm])
+        return self
+
+    def query(self, points: FloatArray) -> tuple[FloatArray, IndexArray]:
+        """Nearest reference point of each query (``cKDTree.query(points, k=1)``'s order).
+
+        Parameters
+        ----------
+        points : ndarray, shape (q, d)
+
+        Returns
+        -------
+        distance : ndarray, shape (q,)
+        index : ndarray, shape (q,)
+        """
+        Q = self._checked(points, self.dim)
+        out_i = np.empty(len(Q), dtype=np.int64)
+        out_d = np.empty(len(Q), dtype=np.float64)
+        _nearest_nd(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, out_i, out_d)
+        return out_d, out_i

@@ -34,7 +34,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial import cKDTree
 
 from topomatch.deform.graph import DeformationGraph
-from topomatch.deform.kdtree import PointTree
+from topomatch.deform.kdtree import JointTree, PointTree
 from topomatch.mesh.geometry import vertex_normals
 from topomatch.mesh.spectral import SparseCholesky
 from topomatch.typing import BoolArray, FloatArray, IndexArray
@@ -720,11 +720,12 @@ def feature_pairs(
     target_normals: FloatArray,
     source_features: FloatArray,
     target_points: FloatArray,
-    target_tree: cKDTree,
+    target_tree: JointTree | cKDTree,
     *,
     sigma: float,
     min_cos: float = 0.3,
     pool: Executor | None = None,
+    source_tree: JointTree | None = None,
 ) -> DataPairs:
     """ICP pairs in both directions, nearest in positions *and* features.
 
@@ -744,16 +745,19 @@ def feature_pairs(
         Already scaled to lengths.
     target_points : ndarray, shape (n2, 3 + d)
         ``[target_vertices, scaled target features]``.
-    target_tree : cKDTree
-        Built on ``target_points``.
+    target_tree : JointTree or cKDTree
+        Built (or refitted) on ``target_points``.
     sigma, min_cos : float
     pool : Executor, optional
         Runs the backward search beside the forward one.
+    source_tree : JointTree, optional
+        A tree on ``[deformed, source_features]`` (refitted to them by the caller);
+        ``None`` builds one.
     """
     joint = np.c_[deformed, source_features]
 
     def backward() -> tuple[IndexArray, FloatArray]:
-        i = cKDTree(joint).query(target_points)[1]
+        i = (JointTree(joint) if source_tree is None else source_tree).query(target_points)[1]
         return i, np.linalg.norm(target_vertices - deformed[i], axis=1)
 
     later = pool.submit(backward) if pool is not None else None
@@ -992,7 +996,8 @@ def register(
     tree = _search_tree(W)
     stree: PointTree | None = None  # on the deformed source
     feats = _checked_features(schedule, features, len(V), len(W))
-    joint: tuple[float, FloatArray, cKDTree] | None = None  # (weight, target's joint points, their tree)
+    joint: tuple[float, FloatArray, JointTree] | None = None  # (weight, target's joint points, their tree)
+    jtree: JointTree | None = None  # on the deformed source's joint points
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(schedule.icp_iterations):
             t = it / max(schedule.icp_iterations - 1, 1)
@@ -1001,10 +1006,18 @@ def register(
             sigma = scale * _geometric(schedule.sigma_icp, t)
             if feats is not None:
                 w = scale * (schedule.feature_weight[0] + (schedule.feature_weight[1] - schedule.feature_weight[0]) * t)
-                if joint is None or joint[0] != w:  # the target's tree changes only with the weight
+                # both joint trees are refitted between rebuilds, as the source's tree is
+                # below: the same answers (exact searches), a fraction of the cost
+                rebuild = it % _REBUILD_EVERY == 0
+                if joint is None or joint[0] != w:  # the target's points change only with the weight
                     points = np.c_[W, w * feats[1]]
-                    joint = (w, points, cKDTree(points))
-                pairs = feature_pairs(Vd, Nd, W, Nt, w * feats[0], joint[1], joint[2], sigma=sigma, min_cos=schedule.min_cos, pool=pool)
+                    joint = (w, points, JointTree(points) if joint is None or rebuild else joint[2].refit(points))
+                sf = w * feats[0]
+                sj = np.c_[Vd, sf]
+                jtree = JointTree(sj) if jtree is None or rebuild else jtree.refit(sj)
+                pairs = feature_pairs(
+                    Vd, Nd, W, Nt, sf, joint[1], joint[2], sigma=sigma, min_cos=schedule.min_cos, pool=pool, source_tree=jtree,
+                )
             else:
                 # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
                 stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
