@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from topomatch._blas import one_blas_thread
 from topomatch.mesh import Eigenbasis, TriangleMesh
 from topomatch.typing import FloatArray
 
@@ -44,7 +45,8 @@ def hks(evals: FloatArray, evecs: FloatArray, times: FloatArray, *, scaled: bool
     ndarray, shape (n_vertices, n_times)
     """
     coefs = np.exp(-np.outer(times, evals))  # (n_times, k)
-    out = (evecs**2) @ coefs.T  # (n_vertices, n_times)
+    with one_blas_thread():  # the same bits whatever the BLAS threads
+        out = (evecs**2) @ coefs.T  # (n_vertices, n_times)
     if scaled:
         out /= coefs.sum(axis=1)[None, :]
     return out
@@ -82,7 +84,8 @@ def wks(evals: FloatArray, evecs: FloatArray, energies: FloatArray, sigma: float
     pos = ev > 1e-10 * max(float(ev.max(initial=0.0)), 1e-300)
     logl = np.log(ev[pos])
     coefs = np.exp(-((np.asarray(energies)[:, None] - logl[None, :]) ** 2) / (2 * sigma**2))  # (n_e, k)
-    out = (evecs[:, pos] ** 2) @ coefs.T
+    with one_blas_thread():  # the same bits whatever the BLAS threads
+        out = (evecs[:, pos] ** 2) @ coefs.T
     out /= coefs.sum(axis=1)[None, :]
     return out
 

@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
+from topomatch._blas import one_blas_thread
 from topomatch.typing import FloatArray
 
 __all__ = ["nearest_neighbors"]
 
 _BLOCK_ELEMENTS = 1 << 22
 """Entries of one block of the query x reference score matrix (16 MB in float32)."""
+
+_MAX_THREADS = 4
+"""Threads that share the blocks (each block's product runs on one BLAS thread)."""
 
 
 def nearest_neighbors(reference: FloatArray, queries: FloatArray, *, k: int = 1, return_distances: bool = False):
@@ -51,15 +58,28 @@ def nearest_neighbors(reference: FloatArray, queries: FloatArray, *, k: int = 1,
     Q = np.ones((n, d + 1), dtype=np.float32)
     Q[:, :d] = qry
     bs = max(1, min(n, _BLOCK_ELEMENTS // len(ref)))
-    G = np.empty((bs, len(ref)), dtype=np.float32)
     idx = np.empty((n, k), dtype=np.int64)
-    for s in range(0, n, bs):
-        g = G[: min(bs, n - s)]
-        np.matmul(Q[s : s + bs], R, out=g)
+
+    def block(s: int) -> None:
+        g = np.matmul(Q[s : s + bs], R)
         if k == 1:
             idx[s : s + bs, 0] = np.argmin(g, axis=1)
         else:
             idx[s : s + bs] = np.argpartition(g, k - 1, axis=1)[:, :k]
+
+    # The blocks are fixed by the sizes alone and each product runs on one BLAS thread,
+    # so the answer does not depend on how many threads the BLAS or this pool has (a
+    # multi-threaded float32 product rounds differently on some CPUs, which flipped
+    # near ties between `--jobs 1` and `--jobs 2`); the blocks share the cores instead.
+    starts = range(0, n, bs)
+    n_threads = min(len(starts), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, _MAX_THREADS)
+    with one_blas_thread():
+        if n_threads > 1:
+            with ThreadPoolExecutor(max_workers=n_threads) as pool:
+                list(pool.map(block, starts))
+        else:
+            for s in starts:
+                block(s)
     if k == 1:
         idx = idx[:, 0]
         if not return_distances:

@@ -824,9 +824,10 @@ class DeformMatcher(Matcher):
         features that tell places apart hold them. ``0`` skips it. On the training
         pairs (mean geodesic error x100, Dijkstra, pooled): none 3.54, 20 iterations
         2.94 (20 more iterations without features: 3.40; attempt #64), 40 **2.70**,
-        60 2.66, 80 2.58 (attempt #66); each iteration costs about as much as a fine
-        one (about 45 ms at 10K vertices, 1 s at 60K, where 80 would break the 90 s
-        goal); ``docs/flagship.md``.
+        60 2.66, 80 2.58 (attempts #66, #73); with the joint searches on a compiled
+        tree (:class:`~topomatch.deform.kdtree.JointTree`, attempt #71) an iteration
+        costs about 25 ms at 10K vertices, and 80 iterations about 1 s more per
+        low-res pair than 40; ``docs/flagship.md``.
     feature_weight : float
         Length (units of sqrt(source area)) that a feature distance of 1 (the
         source's typical feature spread) counts as in those pairs at the first of
