@@ -71,10 +71,11 @@ def _select(P, perm, keys, left, right, k, dim):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _refit(P, perm, lo, hi, left, bmin, bmax):  # pragma: no cover - compiled
-    """Tight boxes of every node for positions ``P``; children have larger indices than parents."""
+    """Tight boxes of every node for positions ``P`` (any dimension); children have larger indices than parents."""
+    dims = P.shape[1]
     for node in range(len(lo) - 1, -1, -1):
         if left[node] < 0:
-            for d in range(3):
+            for d in range(dims):
                 mn = np.inf
                 mx = -np.inf
                 for i in range(lo[node], hi[node]):
@@ -85,26 +86,25 @@ def _refit(P, perm, lo, hi, left, bmin, bmax):  # pragma: no cover - compiled
                 bmax[node, d] = mx
         else:
             a = left[node]
-            b = a + 1
-            for d in range(3):
-                bmin[node, d] = min(bmin[a, d], bmin[b, d])
-                bmax[node, d] = max(bmax[a, d], bmax[b, d])
+            for d in range(dims):
+                bmin[node, d] = min(bmin[a, d], bmin[a + 1, d])
+                bmax[node, d] = max(bmax[a, d], bmax[a + 1, d])
 
 
 @numba.njit(cache=True, nogil=True)
 def _build(P, leaf):  # pragma: no cover - compiled
-    """Median splits along the widest side of each node's (loose) box; tight boxes at the end."""
-    n = P.shape[0]
+    """Median splits along the widest side of each node's (loose) box; tight boxes at the end (any dimension)."""
+    n, dims = P.shape
     perm = np.arange(n)
     max_nodes = 2 * (n // max(leaf // 2, 1) + 1) + 1
     lo = np.empty(max_nodes, np.int64)
     hi = np.empty(max_nodes, np.int64)
     left = np.full(max_nodes, -1, np.int64)
-    bmin = np.empty((max_nodes, 3))
-    bmax = np.empty((max_nodes, 3))
+    bmin = np.empty((max_nodes, dims))
+    bmax = np.empty((max_nodes, dims))
     stack = np.empty(max_nodes, np.int64)
     keys = np.empty(n)
-    for d in range(3):
+    for d in range(dims):
         bmin[0, d] = P[:, d].min()
         bmax[0, d] = P[:, d].max()
     lo[0] = 0
@@ -119,17 +119,17 @@ def _build(P, leaf):  # pragma: no cover - compiled
         if b - a <= leaf:
             continue
         dim = 0
-        for d in range(1, 3):
+        for d in range(1, dims):
             if bmax[node, d] - bmin[node, d] > bmax[node, dim] - bmin[node, dim]:
                 dim = d
         mid = (a + b) // 2
         _select(P, perm, keys, a, b - 1, mid, dim)
         cut = P[perm[mid], dim]
-        c = n_nodes  # children c (lower half) and c + 1
+        c = n_nodes
         n_nodes += 2
         lo[c], hi[c], lo[c + 1], hi[c + 1] = a, mid, mid, b
         left[node] = c
-        for d in range(3):
+        for d in range(dims):
             bmin[c, d] = bmin[node, d]
             bmax[c, d] = bmax[node, d]
             bmin[c + 1, d] = bmin[node, d]
@@ -324,83 +324,7 @@ class PointTree:
         return dist, idx
 
 
-# --- any dimension: the feature stage's joint [position, feature] searches ---------------
-
-
-@numba.njit(cache=True, nogil=True)
-def _refit_nd(P, perm, lo, hi, left, bmin, bmax):  # pragma: no cover - compiled
-    """:func:`_refit` for points of any dimension."""
-    dims = P.shape[1]
-    for node in range(len(lo) - 1, -1, -1):
-        if left[node] < 0:
-            for d in range(dims):
-                mn = np.inf
-                mx = -np.inf
-                for i in range(lo[node], hi[node]):
-                    v = P[perm[i], d]
-                    mn = min(mn, v)
-                    mx = max(mx, v)
-                bmin[node, d] = mn
-                bmax[node, d] = mx
-        else:
-            a = left[node]
-            for d in range(dims):
-                bmin[node, d] = min(bmin[a, d], bmin[a + 1, d])
-                bmax[node, d] = max(bmax[a, d], bmax[a + 1, d])
-
-
-@numba.njit(cache=True, nogil=True)
-def _build_nd(P, leaf):  # pragma: no cover - compiled
-    """:func:`_build` for points of any dimension."""
-    n, dims = P.shape
-    perm = np.arange(n)
-    max_nodes = 2 * (n // max(leaf // 2, 1) + 1) + 1
-    lo = np.empty(max_nodes, np.int64)
-    hi = np.empty(max_nodes, np.int64)
-    left = np.full(max_nodes, -1, np.int64)
-    bmin = np.empty((max_nodes, dims))
-    bmax = np.empty((max_nodes, dims))
-    stack = np.empty(max_nodes, np.int64)
-    keys = np.empty(n)
-    for d in range(dims):
-        bmin[0, d] = P[:, d].min()
-        bmax[0, d] = P[:, d].max()
-    lo[0] = 0
-    hi[0] = n
-    n_nodes = 1
-    sp = 1
-    stack[0] = 0
-    while sp > 0:
-        sp -= 1
-        node = stack[sp]
-        a, b = lo[node], hi[node]
-        if b - a <= leaf:
-            continue
-        dim = 0
-        for d in range(1, dims):
-            if bmax[node, d] - bmin[node, d] > bmax[node, dim] - bmin[node, dim]:
-                dim = d
-        mid = (a + b) // 2
-        _select(P, perm, keys, a, b - 1, mid, dim)
-        cut = P[perm[mid], dim]
-        c = n_nodes
-        n_nodes += 2
-        lo[c], hi[c], lo[c + 1], hi[c + 1] = a, mid, mid, b
-        left[node] = c
-        for d in range(dims):
-            bmin[c, d] = bmin[node, d]
-            bmax[c, d] = bmax[node, d]
-            bmin[c + 1, d] = bmin[node, d]
-            bmax[c + 1, d] = bmax[node, d]
-        bmax[c, dim] = cut
-        bmin[c + 1, dim] = cut
-        stack[sp] = c + 1
-        stack[sp + 1] = c
-        sp += 2
-    lo, hi, left = lo[:n_nodes].copy(), hi[:n_nodes].copy(), left[:n_nodes].copy()
-    bmin, bmax = bmin[:n_nodes].copy(), bmax[:n_nodes].copy()
-    _refit_nd(P, perm, lo, hi, left, bmin, bmax)
-    return perm, lo, hi, left, bmin, bmax
+# --- any dimension: the feature stage's joint [position, feature] searches (the tree is built as above) ---
 
 
 @numba.njit(cache=True, nogil=True)
@@ -478,7 +402,7 @@ class JointTree:
         if len(P) == 0:
             raise ValueError("JointTree: no points")
         self.n, self.dim = P.shape
-        self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax = _build_nd(P, _LEAF_SIZE)
+        self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax = _build(P, _LEAF_SIZE)
         self._sorted = np.ascontiguousarray(P[self._perm])
 
     def _checked(self, points: FloatArray, dim: int | None) -> np.ndarray:
@@ -495,7 +419,7 @@ class JointTree:
         P = self._checked(points, self.dim)
         if len(P) != self.n:
             raise ValueError(f"JointTree.refit: expected {self.n} points, got {len(P)}")
-        _refit_nd(P, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax)
+        _refit(P, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax)
         self._sorted = np.ascontiguousarray(P[self._perm])
         return self
 
