@@ -3,7 +3,9 @@
 Some BLAS products round differently with different thread counts on some CPUs
 (OpenBLAS on AMD EPYC: float32 and some float64 matrix products), so the numerics whose
 bits must not depend on ``--jobs`` run on one BLAS thread. ``threadpool_limits`` scans
-the loaded libraries on every call (about 0.3 ms); the controller scans them once.
+the loaded libraries on every call (about 0.3 ms); the controller scans them once, at
+the first use, when importing ``topomatch`` has already loaded numpy's and scipy's
+OpenBLAS (a BLAS library loaded only later would not be limited).
 """
 
 from __future__ import annotations

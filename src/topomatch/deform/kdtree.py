@@ -149,7 +149,7 @@ def _build(P, leaf):  # pragma: no cover - compiled
 def _box_d2(q, bmin, bmax, node):  # pragma: no cover - compiled
     """Squared distance from ``q`` to the box of ``node`` (0 inside)."""
     s = 0.0
-    for d in range(3):
+    for d in range(q.shape[0]):
         t = max(bmin[node, d] - q[d], q[d] - bmax[node, d], 0.0)
         s += t * t
     return s
@@ -157,7 +157,8 @@ def _box_d2(q, bmin, bmax, node):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stack_d):  # pragma: no cover
-    """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves)."""
+    """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves; any dimension)."""
+    dims = q.shape[0]
     for j in range(k):
         best_d[j] = np.inf
         best_i[j] = -1
@@ -171,10 +172,10 @@ def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stac
             continue
         if left[node] < 0:
             for i in range(lo[node], hi[node]):
-                dx = Ps[i, 0] - q[0]
-                dy = Ps[i, 1] - q[1]
-                dz = Ps[i, 2] - q[2]
-                d2 = dx * dx + dy * dy + dz * dz
+                d2 = 0.0
+                for d in range(dims):
+                    t = Ps[i, d] - q[d]
+                    d2 += t * t
                 if d2 < best_d[k - 1]:
                     j = k - 1
                     while j > 0 and best_d[j - 1] > d2:
@@ -324,63 +325,6 @@ class PointTree:
         return dist, idx
 
 
-# --- any dimension: the feature stage's joint [position, feature] searches (the tree is built as above) ---
-
-
-@numba.njit(cache=True, nogil=True)
-def _nearest_nd(Ps, perm, lo, hi, left, bmin, bmax, Q, out_i, out_d):  # pragma: no cover - compiled
-    """Nearest point of each query row (any dimension); ties go to the first leaf reached."""
-    dims = Ps.shape[1]
-    stack_n = np.empty(2 * len(lo) + 2, np.int64)
-    stack_d = np.empty(2 * len(lo) + 2)
-    for q in range(Q.shape[0]):
-        best = np.inf
-        best_i = -1
-        stack_n[0] = 0
-        stack_d[0] = 0.0
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            node = stack_n[sp]
-            if stack_d[sp] >= best:
-                continue
-            if left[node] < 0:
-                for i in range(lo[node], hi[node]):
-                    d2 = 0.0
-                    for d in range(dims):
-                        t = Ps[i, d] - Q[q, d]
-                        d2 += t * t
-                        if d2 >= best:
-                            break
-                    if d2 < best:
-                        best = d2
-                        best_i = perm[i]
-                continue
-            a = left[node]
-            da = 0.0
-            db = 0.0
-            for d in range(dims):
-                x = Q[q, d]
-                t = max(bmin[a, d] - x, x - bmax[a, d], 0.0)
-                da += t * t
-                t = max(bmin[a + 1, d] - x, x - bmax[a + 1, d], 0.0)
-                db += t * t
-            if da <= db:
-                near, d_near, far, d_far = a, da, a + 1, db
-            else:
-                near, d_near, far, d_far = a + 1, db, a, da
-            if d_far < best:
-                stack_n[sp] = far
-                stack_d[sp] = d_far
-                sp += 1
-            if d_near < best:
-                stack_n[sp] = near
-                stack_d[sp] = d_near
-                sp += 1
-        out_i[q] = best_i
-        out_d[q] = np.sqrt(best)
-
-
 class JointTree:
     """Exact nearest-point queries among fixed-count points of any dimension.
 
@@ -395,12 +339,19 @@ class JointTree:
     ----------
     points : ndarray, shape (n, d)
         Reference points (at least one, finite).
+
+    Attributes
+    ----------
+    data : ndarray, shape (n, d)
+        The reference points (as of the last :meth:`refit`).
+    n, dim : int
     """
 
     def __init__(self, points: FloatArray) -> None:
         P = self._checked(points, None)
         if len(P) == 0:
             raise ValueError("JointTree: no points")
+        self.data = P
         self.n, self.dim = P.shape
         self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax = _build(P, _LEAF_SIZE)
         self._sorted = np.ascontiguousarray(P[self._perm])
@@ -419,6 +370,7 @@ class JointTree:
         P = self._checked(points, self.dim)
         if len(P) != self.n:
             raise ValueError(f"JointTree.refit: expected {self.n} points, got {len(P)}")
+        self.data = P
         _refit(P, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax)
         self._sorted = np.ascontiguousarray(P[self._perm])
         return self
@@ -438,5 +390,6 @@ class JointTree:
         Q = self._checked(points, self.dim)
         out_i = np.empty(len(Q), dtype=np.int64)
         out_d = np.empty(len(Q), dtype=np.float64)
-        _nearest_nd(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, out_i, out_d)
+        no_normals = np.zeros((0, 3))  # k = 1: the nearest, no normal test
+        _nearest_compatible(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, no_normals, no_normals, 1, 0.0, out_i, out_d)
         return out_d, out_i

@@ -751,10 +751,10 @@ def feature_pairs(
     pool : Executor, optional
         Runs the backward search beside the forward one.
     source_tree : JointTree, optional
-        A tree on ``[deformed, source_features]`` (refitted to them by the caller);
-        ``None`` builds one.
+        A tree on ``[deformed, source_features]`` (refitted to them by the caller, whose
+        points are then taken from it); ``None`` builds one.
     """
-    joint = np.c_[deformed, source_features]
+    joint = np.c_[deformed, source_features] if source_tree is None else source_tree.data
 
     def backward() -> tuple[IndexArray, FloatArray]:
         i = (JointTree(joint) if source_tree is None else source_tree).query(target_points)[1]

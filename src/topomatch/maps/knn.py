@@ -72,7 +72,7 @@ def nearest_neighbors(reference: FloatArray, queries: FloatArray, *, k: int = 1,
     # multi-threaded float32 product rounds differently on some CPUs, which flipped
     # near ties between `--jobs 1` and `--jobs 2`); the blocks share the cores instead.
     starts = range(0, n, bs)
-    n_threads = min(len(starts), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, _MAX_THREADS)
+    n_threads = min(len(starts), os.cpu_count() or 1, _MAX_THREADS)
     with one_blas_thread():
         if n_threads > 1:
             with ThreadPoolExecutor(max_workers=n_threads) as pool:

@@ -60,8 +60,8 @@ from typing import Any, TypeVar
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from threadpoolctl import threadpool_limits
 
+from topomatch._blas import one_blas_thread
 from topomatch.deform.graph import DeformationGraph, build_deformation_graph
 from topomatch.deform.kdtree import PointTree
 from topomatch.deform.register import (
@@ -1175,14 +1175,14 @@ class DeformMatcher(Matcher):
         n = self._n_threads()
         if n <= 1:
             hyps = list(chain(spectral, extrinsic, others))
-            with threadpool_limits(limits=1, user_api="blas"):
+            with one_blas_thread():
                 results = self._map(verify, hyps)
             return hyps, results
         # pipelined: the extrinsic hypotheses (cheap) are verified on the pool while this
         # thread computes the spectral ones (the costly part); the lists keep the order
         # spectral, extrinsic, others. The registrations' small dense solves lose to BLAS
         # threads competing with ours.
-        with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=n) as pool:
+        with one_blas_thread(), ThreadPoolExecutor(max_workers=n) as pool:
             later = [(h, pool.submit(verify, h)) for h in extrinsic]
             if target_basis is not None:  # waits without the GIL while the pool verifies
                 target_basis.result()
@@ -1351,7 +1351,7 @@ class DeformMatcher(Matcher):
         hyps, results = self._verify(source, target, settings, samples, graph, target_basis)
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             i_best, r_best, swaps, continued, limbs = self._refine(source, target, hyps, results, order, samples, graph)
         t2 = time.perf_counter()
         info = {

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 from scipy.sparse import linalg as sla
-from threadpoolctl import threadpool_limits
 
+from topomatch._blas import one_blas_thread
 from topomatch.typing import FloatArray
 
 __all__ = ["Eigenbasis", "SparseCholesky", "laplacian_eigenbasis"]
@@ -155,7 +155,7 @@ def laplacian_eigenbasis(
     # machine and lose 10x or more when cores are shared (measured 1.3 s against 19 s for
     # k = 100 on an 11K-vertex mesh with the two cores busy), and a fixed thread count
     # makes the basis bit-for-bit independent of how many processes run.
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         if k >= n - 1 or n < 40:
             evals, evecs = _dense_eig(L, m, k)
         else:
