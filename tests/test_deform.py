@@ -227,6 +227,26 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair, monkeypatch):
     assert list(c1.info["residuals"].items()) == list(c.info["residuals"].items())
 
 
+def test_deform_registers_large_meshes_through_decimated_copies(pair):
+    src, tgt, perm = pair  # 2,562 vertices each
+    kw = {"hypotheses": (("hks", 30, False), ("hks", 30, True)), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200}
+    small = make_matcher("deform", working_vertices=1000, **kw)
+    c = small.match(src, tgt)
+    n1, n2 = c.info["working_vertices"]
+    assert abs(n1 - 1000) < 50 and abs(n2 - 1000) < 50 and c.info["seconds"]["decimation"] >= 0
+    assert c.p2p_21.shape == (tgt.n_vertices,) and c.p2p_21.min() >= 0
+    err = np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1) / np.sqrt(src.area)
+    assert np.mean(err) < 0.06
+    deformed, _ = small.register(src, tgt)  # carried to every source vertex, onto the target
+    assert deformed.shape == src.vertices.shape
+    assert np.median(cKDTree(tgt.vertices).query(deformed)[0]) < 0.01 * np.sqrt(src.area)
+    # meshes within the working size are registered as they are
+    assert "working_vertices" not in make_matcher("deform", **kw).match(src, tgt).info
+    for wv in (999, 2.5e4, True):
+        with pytest.raises(ValueError, match="working_vertices"):
+            make_matcher("deform", working_vertices=wv).match(src, tgt)
+
+
 def test_deform_matcher_rejects_bad_parameters(pair):
     src, tgt, _ = pair
     assert MATCHERS["deform"].name == "deform"

@@ -81,3 +81,78 @@ def vertex_normal_sums(vertices, faces, out):  # pragma: no cover - compiled
             out[v, 0] = 0.0
             out[v, 1] = 0.0
             out[v, 2] = 0.0
+
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
+    """Barycentric weights (of a, b, c) of the point of triangle abc closest to p (Voronoi regions of its features)."""
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1 = ab @ ap
+    d2 = ac @ ap
+    if d1 <= 0.0 and d2 <= 0.0:
+        return 1.0, 0.0, 0.0
+    bp = p - b
+    d3 = ab @ bp
+    d4 = ac @ bp
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return 1.0 - v, v, 0.0
+    cp = p - c
+    d5 = ab @ cp
+    d6 = ac @ cp
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return 1.0 - w, 0.0, w
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - w, w
+    den = va + vb + vc
+    if den <= 0.0:  # degenerate triangle
+        return 1.0, 0.0, 0.0
+    v = vb / den
+    w = vc / den
+    return 1.0 - v - w, v, w
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def ring_closest_points(points, nearest, vertices, faces, ring_ptr, ring_faces, face_out, bary_out):  # pragma: no cover - compiled
+    """For each point, the closest point on the faces around its nearest vertices.
+
+    points : (q, 3); nearest : (q, k) vertex indices per point; vertices : (n, 3);
+    faces : (f, 3); ring_ptr : (n + 1,), ring_faces : (3 f,) the faces of each vertex
+    in CSR form. Writes the face (face_out, (q,); -1 if the vertex has no face) and the
+    barycentric weights of its corners (bary_out, (q, 3); (1, 0, 0) for no face).
+    """
+    for i in range(points.shape[0]):
+        p = points[i]
+        best = np.inf
+        face_out[i] = -1
+        bary_out[i, 0] = 1.0
+        bary_out[i, 1] = 0.0
+        bary_out[i, 2] = 0.0
+        for k in range(nearest.shape[1]):
+            j = nearest[i, k]
+            for r in range(ring_ptr[j], ring_ptr[j + 1]):
+                f = ring_faces[r]
+                a = vertices[faces[f, 0]]
+                b = vertices[faces[f, 1]]
+                c = vertices[faces[f, 2]]
+                u, v, w = _closest_on_triangle(p, a, b, c)
+                q = u * a + v * b + w * c - p
+                d = q @ q
+                if d < best:
+                    best = d
+                    face_out[i] = f
+                    bary_out[i, 0] = u
+                    bary_out[i, 1] = v
+                    bary_out[i, 2] = w

@@ -41,6 +41,10 @@
    vertices nearest in position *and* local shape features (:func:`local_wks_features`),
    the features' weight falling to zero; every target vertex then takes the nearest
    deformed source vertex with a compatible normal (:func:`map_from_deformed`).
+
+Meshes larger than ``working_vertices`` (12,000 by default) go through steps 1-7 as
+decimated copies, whose deformation is carried back to the full source before the map
+is read off.
 """
 
 from __future__ import annotations
@@ -87,6 +91,7 @@ from topomatch.maps.zoomout import _fmap_from_p2p_rows, zoomout_schedule
 from topomatch.matching.base import Correspondence, Matcher
 from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
+from topomatch.mesh.decimate import decimate, surface_weights
 from topomatch.mesh.geometry import axis_rotation, edges_with_counts, vertex_normals
 from topomatch.mesh.mesh import EigenbasisJob
 from topomatch.mesh.sampling import farthest_point_sampling
@@ -923,6 +928,18 @@ class DeformMatcher(Matcher):
         "em")`` was the default before the rigid hypotheses; with them, adding these two
         made the choice worse on the training pairs, 9.65 -> 11.38 at the coarse level,
         see ``docs/flagship.md``).
+    working_vertices : int or None
+        A mesh with more vertices than this is registered through a copy decimated to
+        about this many (quadric edge collapses, :func:`~topomatch.mesh.decimate.decimate`),
+        and the copy's displacements are carried to the source's own vertices by
+        barycentric interpolation on the copy (:func:`~topomatch.mesh.decimate.surface_weights`);
+        the map is then read off at full resolution. Every step of the method works on
+        samples, graphs and local features that a 12K-vertex copy of a body resolves;
+        on the 13 high-res training shapes (kid00 -> kidNN, 52K-62K vertices; Euclidean
+        error x100 on kid00) full resolution gave 6.80 at 27 s per pair, the copies
+        6.48 at 9 s (``docs/flagship.md``, attempt #80). ``None`` registers every mesh
+        as it is. The low-res TOPKIDS shapes (at most 12,000 vertices) are never
+        decimated.
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
@@ -968,6 +985,7 @@ class DeformMatcher(Matcher):
         limb_candidates: int = 2,
         limb_judge: str = "coarse",
         limb_judge_iterations: int | None = None,
+        working_vertices: int | None = 12000,
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
     ) -> None:
@@ -999,6 +1017,7 @@ class DeformMatcher(Matcher):
         self.limb_candidates = limb_candidates
         self.limb_judge = limb_judge
         self.limb_judge_iterations = limb_judge_iterations
+        self.working_vertices = working_vertices
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
 
@@ -1026,6 +1045,9 @@ class DeformMatcher(Matcher):
             or not all(isinstance(a, (int, float, np.integer, np.floating)) and 0 < a <= 180 for a in angles)
         ):
             raise ValueError(f"bend_angles must be a non-empty tuple of degrees in (0, 180], got {angles!r}")
+        wv = self.working_vertices
+        if wv is not None and (isinstance(wv, (bool, np.bool_)) or not isinstance(wv, (int, np.integer)) or wv < 1000):
+            raise ValueError(f"working_vertices must be an integer >= 1000 or None, got {wv!r}")
         if not isinstance(self.limb_rounds, (int, np.integer)) or self.limb_rounds < 0:
             raise ValueError(f"limb_rounds must be an integer >= 0, got {self.limb_rounds!r}")
         if not isinstance(self.limb_min_gain, (int, float, np.integer, np.floating)) or not 0 <= self.limb_min_gain < 1:
@@ -1331,6 +1353,11 @@ class DeformMatcher(Matcher):
     def register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
         """Deform the source onto the target (the registration behind :meth:`match`).
 
+        A mesh with more than ``working_vertices`` vertices is registered through a
+        decimated copy (:func:`~topomatch.mesh.decimate.decimate`); the copy's
+        displacements are carried to the source's own vertices by barycentric
+        interpolation (:func:`~topomatch.mesh.decimate.surface_weights`).
+
         Parameters
         ----------
         source : TriangleMesh
@@ -1345,6 +1372,24 @@ class DeformMatcher(Matcher):
         info : dict
             Diagnostics, as in ``Correspondence.info``.
         """
+        self._check()
+        wv = self.working_vertices
+        if wv is None or (source.n_vertices <= wv and target.n_vertices <= wv):
+            return self._register(source, target)
+        t0 = time.perf_counter()
+        src, tgt = decimate(source, int(wv)), decimate(target, int(wv))
+        t1 = time.perf_counter()
+        deformed, info = self._register(src, tgt)
+        t2 = time.perf_counter()
+        if src is not source:
+            deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
+        info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
+        info["seconds"]["decimation"] = t1 - t0
+        info["seconds"]["refinement"] += time.perf_counter() - t2
+        return deformed, info
+
+    def _register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
+        """:meth:`register` on meshes of working size."""
         t0 = time.perf_counter()
         settings = self._check()
         samples, graph, target_basis = self._setup(source, target)
