@@ -63,3 +63,5 @@ def test_surface_weights_interpolate_from_the_copy():
     A, b = np.array([[1.0, 2.0, 0.5], [0.0, -1.0, 3.0], [2.0, 0.0, 1.0]]), np.array([0.3, -0.2, 1.0])
     np.testing.assert_allclose(W @ (small.vertices @ A.T + b), X @ A.T + b, atol=1e-12)
     np.testing.assert_allclose(surface_weights(small.vertices, small) @ small.vertices, small.vertices, atol=1e-12)
+    with pytest.raises(ValueError, match="finite"):
+        surface_weights(np.full((2, 3), np.nan), small)

@@ -101,6 +101,8 @@ def surface_weights(points: FloatArray, mesh: TriangleMesh, *, k: int = 4) -> sp
         per-vertex values of the mesh at the points.
     """
     P = np.ascontiguousarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or not np.isfinite(P).all():
+        raise ValueError(f"surface_weights: points must be a finite (q, 3) array, got shape {P.shape}")
     nearest = np.asarray(cKDTree(mesh.vertices).query(P, k=max(1, min(k, mesh.n_vertices)))[1], dtype=np.int64).reshape(len(P), -1)
     ptr, ring = vertex_face_rings(mesh.n_vertices, mesh.faces)
     face = np.empty(len(P), dtype=np.int64)
