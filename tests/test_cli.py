@@ -125,3 +125,16 @@ def test_param_values_parse_like_python_and_shell_booleans():
     assert p["deform"] == {"background_eigenbasis": False, "k_zoomout": 80, "n_threads": 1}
     assert p["fmap"] == {"n_threads": 1, "note": "abc"}
     assert _parse_params(["x.flag=True"])["x"]["flag"] is True
+
+
+@pytest.mark.parametrize("flags, cached", [([], True), (["--no-cache"], False)])
+def test_evaluate_keeps_geodesic_matrices_in_the_disk_cache(tmp_path, monkeypatch, flags, cached):
+    # the exact all-pairs matrix of kid00 takes the better part of an hour: a second
+    # evaluation must find it (as bench does), unless --no-cache
+    from topomatch import _cache
+
+    monkeypatch.setattr(_cache, "_CACHE_DIR", None)
+    monkeypatch.setenv("TOPOMATCH_CACHE_DIR", "")  # off, and restored afterwards
+    monkeypatch.setattr(_cache, "default_cache_dir", lambda: tmp_path / "cache")
+    main(["evaluate", str(tmp_path / "none"), "--protocol", "topkids25", "--data", str(tmp_path), "--out", str(tmp_path / "ev"), "--quiet", *flags])
+    assert (_cache.cache_dir() == tmp_path / "cache") is cached

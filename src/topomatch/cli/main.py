@@ -80,6 +80,7 @@ def _build_parser() -> argparse.ArgumentParser:
     e.add_argument("--split", choices=["train", "test", "all"])
     e.add_argument("--name", default="submission", help="method label in the results")
     e.add_argument("--out", metavar="RUN", help="run directory (default: runs/evaluate-<name>-<time>)")
+    e.add_argument("--no-cache", action="store_true", help="do not read or write the disk cache of geodesic matrices")
     e.add_argument("--jobs", type=int, default=1)
     esym = e.add_mutually_exclusive_group()
     esym.add_argument("--symmetric", dest="symmetric", action="store_true", default=None)
@@ -228,6 +229,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path("runs") / f"evaluate-{args.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    _enable_cache(args.no_cache)
     try:
         summary = evaluate_submission(
             args.submission,
