@@ -936,8 +936,8 @@ class DeformMatcher(Matcher):
         the map is then read off at full resolution. Every step of the method works on
         samples, graphs and local features that a 12K-vertex copy of a body resolves;
         on the 13 high-res training shapes (kid00 -> kidNN, 52K-62K vertices; Euclidean
-        error x100 on kid00) full resolution gave 6.80 at 27 s per pair, the copies
-        6.48 at 9 s (``docs/flagship.md``, attempt #80). ``None`` registers every mesh
+        error x100 on kid00) full resolution gave 6.80, the copies 6.48, and a match
+        took 8.7 s instead of 28.7 s (``docs/flagship.md``, attempt #80). ``None`` registers every mesh
         as it is. The low-res TOPKIDS shapes (at most 12,000 vertices) are never
         decimated.
     n_threads : int or None
@@ -1372,14 +1372,14 @@ class DeformMatcher(Matcher):
         info : dict
             Diagnostics, as in ``Correspondence.info``.
         """
-        self._check()
+        settings = self._check()
         wv = self.working_vertices
         if wv is None or (source.n_vertices <= wv and target.n_vertices <= wv):
-            return self._register(source, target)
+            return self._register(source, target, settings)
         t0 = time.perf_counter()
         src, tgt = decimate(source, int(wv)), decimate(target, int(wv))
         t1 = time.perf_counter()
-        deformed, info = self._register(src, tgt)
+        deformed, info = self._register(src, tgt, settings)
         t2 = time.perf_counter()
         if src is not source:
             deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
@@ -1388,10 +1388,11 @@ class DeformMatcher(Matcher):
         info["seconds"]["refinement"] += time.perf_counter() - t2
         return deformed, info
 
-    def _register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
-        """:meth:`register` on meshes of working size."""
+    def _register(
+        self, source: TriangleMesh, target: TriangleMesh, settings: list[tuple[str, int, bool]]
+    ) -> tuple[FloatArray, dict[str, Any]]:
+        """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`)."""
         t0 = time.perf_counter()
-        settings = self._check()
         samples, graph, target_basis = self._setup(source, target)
         hyps, results = self._verify(source, target, settings, samples, graph, target_basis)
         order = np.argsort([r.residual for r in results], kind="stable")
