@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from topomatch._kernels import ring_closest_points
+from topomatch.datasets._surface import SurfaceLocator, vertex_faces
 from topomatch.datasets.toy import icosphere
-from topomatch.mesh.decimate import decimate, surface_weights, vertex_face_rings
+from topomatch.mesh.decimate import decimate, surface_weights
 
 
 def test_decimate_keeps_the_surface():
@@ -25,9 +25,9 @@ def test_decimate_keeps_the_surface():
             decimate(mesh, n)  # type: ignore[arg-type]
 
 
-def test_vertex_face_rings():
+def test_vertex_faces():
     faces = np.array([[0, 1, 2], [0, 2, 3], [3, 2, 4]])
-    ptr, ring = vertex_face_rings(6, faces)
+    ptr, ring = vertex_faces(faces, 6)
     rings = [sorted(ring[ptr[i] : ptr[i + 1]].tolist()) for i in range(6)]
     assert rings == [[0, 1], [0], [0, 1, 2], [1, 2], [2], []]
 
@@ -37,9 +37,7 @@ def test_closest_point_on_a_triangle_matches_brute_force():
     V = rng.normal(size=(3, 3))
     F = np.array([[0, 1, 2]])
     P = 2 * rng.normal(size=(5000, 3))
-    ptr, ring = vertex_face_rings(3, F)
-    face, bary = np.empty(len(P), dtype=np.int64), np.empty((len(P), 3))
-    ring_closest_points(P, np.zeros((len(P), 1), dtype=np.int64), V, F, ptr, ring, face, bary)
+    face, bary, _ = SurfaceLocator(V, F).query(P)  # what surface_weights builds on
     assert np.all(face == 0) and np.all(bary >= -1e-12)
     np.testing.assert_allclose(bary.sum(axis=1), 1.0, atol=1e-12)
     d = np.linalg.norm(bary @ V - P, axis=1)

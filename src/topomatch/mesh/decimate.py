@@ -14,11 +14,11 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from topomatch._kernels import ring_closest_points
+from topomatch.datasets._surface import SurfaceLocator
 from topomatch.mesh.mesh import TriangleMesh
-from topomatch.typing import FloatArray, IndexArray
+from topomatch.typing import FloatArray
 
-__all__ = ["decimate", "surface_weights", "vertex_face_rings"]
+__all__ = ["decimate", "surface_weights"]
 
 
 def decimate(mesh: TriangleMesh, n_vertices: int) -> TriangleMesh:
@@ -60,26 +60,6 @@ def decimate(mesh: TriangleMesh, n_vertices: int) -> TriangleMesh:
     return TriangleMesh(np.asarray(v, dtype=np.float64)[used], f.reshape(-1, 3), name=name)
 
 
-def vertex_face_rings(n_vertices: int, faces: IndexArray) -> tuple[IndexArray, IndexArray]:
-    """The faces around each vertex, in CSR form.
-
-    Parameters
-    ----------
-    n_vertices : int
-    faces : ndarray, shape (f, 3)
-
-    Returns
-    -------
-    ptr : ndarray, shape (n_vertices + 1,)
-    ring : ndarray, shape (3 f,)
-        The faces of vertex ``i`` are ``ring[ptr[i]:ptr[i + 1]]``.
-    """
-    corners = np.asarray(faces, dtype=np.int64).ravel()
-    ptr = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(np.bincount(corners, minlength=n_vertices), out=ptr[1:])
-    return ptr, np.argsort(corners, kind="stable") // 3
-
-
 def surface_weights(points: FloatArray, mesh: TriangleMesh, *, k: int = 4) -> sparse.csr_matrix:
     """Each point's closest point on ``mesh``, as barycentric weights of the mesh's vertices.
 
@@ -103,11 +83,10 @@ def surface_weights(points: FloatArray, mesh: TriangleMesh, *, k: int = 4) -> sp
     P = np.ascontiguousarray(points, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or not np.isfinite(P).all():
         raise ValueError(f"surface_weights: points must be a finite (q, 3) array, got shape {P.shape}")
-    nearest = np.asarray(cKDTree(mesh.vertices).query(P, k=max(1, min(k, mesh.n_vertices)))[1], dtype=np.int64).reshape(len(P), -1)
-    ptr, ring = vertex_face_rings(mesh.n_vertices, mesh.faces)
-    face = np.empty(len(P), dtype=np.int64)
-    bary = np.empty((len(P), 3))
-    ring_closest_points(P, nearest, np.ascontiguousarray(mesh.vertices), np.ascontiguousarray(mesh.faces, dtype=np.int64), ptr, ring, face, bary)
-    cols = np.where(face[:, None] >= 0, mesh.faces[np.maximum(face, 0)], nearest[:, :1])
+    face, bary, _ = SurfaceLocator(mesh.vertices, mesh.faces, k=k).query(P)
+    cols = mesh.faces[np.maximum(face, 0)]
+    lost = face < 0  # none of the k nearest vertices has a face: the nearest vertex itself
+    if lost.any():
+        cols[lost] = np.asarray(cKDTree(mesh.vertices).query(P[lost])[1], dtype=np.int64)[:, None]
     rows = np.repeat(np.arange(len(P)), 3)
     return sparse.csr_matrix((bary.ravel(), (rows, cols.ravel())), shape=(len(P), mesh.n_vertices))
