@@ -230,10 +230,11 @@ def test_deform_matcher_on_a_bent_shuffled_copy(pair, monkeypatch):
 def test_deform_registers_large_meshes_through_decimated_copies(pair):
     src, tgt, perm = pair  # 2,562 vertices each
     kw = {"hypotheses": (("hks", 30, False), ("hks", 30, True)), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200}
-    small = make_matcher("deform", working_vertices=1000, **kw)
+    small = make_matcher("deform", working_vertices=1000, working_sizes=(1000,), **kw)
     c = small.match(src, tgt)
     n1, n2 = c.info["working_vertices"]
     assert abs(n1 - 1000) < 50 and abs(n2 - 1000) < 50 and c.info["seconds"]["decimation"] >= 0
+    assert list(c.info["working_sizes"]) == ["1000"] and c.info["working_size"] == 1000
     assert c.p2p_21.shape == (tgt.n_vertices,) and c.p2p_21.min() >= 0
     err = np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1) / np.sqrt(src.area)
     assert np.mean(err) < 0.06
@@ -245,6 +246,27 @@ def test_deform_registers_large_meshes_through_decimated_copies(pair):
     for wv in (999, 2.5e4, True):
         with pytest.raises(ValueError, match="working_vertices"):
             make_matcher("deform", working_vertices=wv).match(src, tgt)
+    for ws in ((), (999,), 1000, (1000, 2.5e3), (True,)):
+        with pytest.raises(ValueError, match="working_sizes"):
+            make_matcher("deform", working_vertices=1000, working_sizes=ws).match(src, tgt)
+
+
+def test_deform_keeps_the_working_size_with_the_best_full_resolution_score(pair):
+    src, tgt, _ = pair  # 2,562 vertices each
+    kw = {"hypotheses": (("hks", 30, False),), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200, "working_vertices": 1000}
+    # 3,000 and 4,000 both leave the meshes as they are: one registration for the two
+    c = make_matcher("deform", working_sizes=(1000, 1500, 3000, 4000), **kw).match(src, tgt)
+    sizes = c.info["working_sizes"]
+    assert list(sizes) == ["1000", "1500", "3000"]
+    assert sizes["3000"]["vertices"] == (src.n_vertices, tgt.n_vertices)
+    scores = {k: v["score"] for k, v in sizes.items()}
+    best = min(scores, key=scores.get)
+    assert c.info["working_size"] == int(best) and c.info["working_vertices"] == sizes[best]["vertices"]
+    # the score is the full-resolution residual plus the weighted distortion of the kept registration
+    assert sizes[best]["score"] == pytest.approx(sizes[best]["full_residual"] + 0.025 * c.info["distortion"])
+    # the kept map is that size's own registration (deterministic)
+    alone = make_matcher("deform", working_sizes=(int(best),), **kw).match(src, tgt)
+    np.testing.assert_array_equal(alone.p2p_21, c.p2p_21)
 
 
 def test_deform_matcher_rejects_bad_parameters(pair):

@@ -774,6 +774,12 @@ def map_from_deformed(target: TriangleMesh, deformed: FloatArray, source_faces: 
     return p2p
 
 
+WORKING_SIZES: tuple[int, ...] = (8000, 12000, 20000)
+"""Copy sizes (vertices) at which a pair with a mesh above ``working_vertices`` is
+registered, the best registration by its full-resolution score kept: on the noisy
+high-res training shapes one copy size alone leaves a knife-edge choice (kid10 turned
+front to back at 12,000, right at 8,000 and 20,000); see ``docs/flagship.md``, attempt #84."""
+
 DEFAULT_SETTINGS: tuple[tuple[str, int, bool], ...] = (
     ("hks", 50, False),
     ("hks", 30, False),
@@ -929,17 +935,32 @@ class DeformMatcher(Matcher):
         made the choice worse on the training pairs, 9.65 -> 11.38 at the coarse level,
         see ``docs/flagship.md``).
     working_vertices : int or None
-        A mesh with more vertices than this is registered through a copy decimated to
-        about this many (quadric edge collapses, :func:`~topomatch.mesh.decimate.decimate`),
-        and the copy's displacements are carried to the source's own vertices by
-        barycentric interpolation on the copy (:func:`~topomatch.mesh.decimate.surface_weights`);
-        the map is then read off at full resolution. Every step of the method works on
-        samples, graphs and local features that a 12K-vertex copy of a body resolves;
-        on the 13 high-res training shapes (kid00 -> kidNN, 52K-62K vertices; Euclidean
-        error x100 on kid00) full resolution gave 6.80, the copies 6.48, and a match
-        took 8.7 s instead of 28.7 s (``docs/flagship.md``, attempt #80). ``None`` registers every mesh
-        as it is. The low-res TOPKIDS shapes (at most 12,000 vertices) are never
+        A pair with a mesh of more vertices than this is registered through copies
+        decimated to the sizes of ``working_sizes`` (quadric edge collapses,
+        :func:`~topomatch.mesh.decimate.decimate`); each copy's displacements are
+        carried to the source's own vertices by barycentric interpolation on the copy
+        (:func:`~topomatch.mesh.decimate.surface_weights`), and the map is read off at
+        full resolution. Every step of the method works on samples, graphs and local
+        features that a 12K-vertex copy of a body resolves; on the 13 high-res training
+        shapes (kid00 -> kidNN, 52K-62K vertices; Euclidean error x100 on kid00) full
+        resolution gave 6.80 and one 12K copy 6.48 in session 25, at 8.7 s per match
+        instead of 28.7 s (``docs/flagship.md``, attempt #80). ``None`` registers every
+        mesh as it is. The low-res TOPKIDS shapes (at most 12,000 vertices) are never
         decimated.
+    working_sizes : tuple of int
+        The copy sizes of a pair above ``working_vertices`` (a mesh with at most that
+        many vertices takes part as it is; sizes that give the same pair of meshes run
+        once). The pair is registered at each, and the registration with the lowest
+        full-resolution score is kept: the fit residual (:func:`~topomatch.deform.register.fit_residual`)
+        of the carried-back source against the full target on ``n_samples``
+        farthest-point samples of each, plus ``distortion_weight`` x the copy's
+        distortion. On the noisy high-res shapes the choice among hypotheses is a
+        knife edge that one copy size can lose (kid10 turned front to back at 12,000
+        vertices, right at 8,000 and 20,000); on the 13 high-res training shapes
+        (Euclidean error x100 on kid00) 8,000 alone gave 3.92, 12,000 6.94, 20,000 3.74,
+        and the three judged at full resolution **3.44** (``docs/flagship.md``,
+        attempt #84), at about the three registrations' summed time. ``(12000,)``
+        registers as session 25 did. ``info["working_sizes"]`` has every size's score.
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
@@ -986,6 +1007,7 @@ class DeformMatcher(Matcher):
         limb_judge: str = "coarse",
         limb_judge_iterations: int | None = None,
         working_vertices: int | None = 12000,
+        working_sizes: tuple[int, ...] = WORKING_SIZES,
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
     ) -> None:
@@ -1018,6 +1040,7 @@ class DeformMatcher(Matcher):
         self.limb_judge = limb_judge
         self.limb_judge_iterations = limb_judge_iterations
         self.working_vertices = working_vertices
+        self.working_sizes = working_sizes
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
 
@@ -1048,6 +1071,12 @@ class DeformMatcher(Matcher):
         wv = self.working_vertices
         if wv is not None and (isinstance(wv, (bool, np.bool_)) or not isinstance(wv, (int, np.integer)) or wv < 1000):
             raise ValueError(f"working_vertices must be an integer >= 1000 or None, got {wv!r}")
+        ws = self.working_sizes
+        if (
+            not isinstance(ws, (tuple, list)) or not ws
+            or not all(isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_)) and x >= 1000 for x in ws)
+        ):
+            raise ValueError(f"working_sizes must be a non-empty tuple of integers >= 1000, got {ws!r}")
         if not isinstance(self.limb_rounds, (int, np.integer)) or self.limb_rounds < 0:
             raise ValueError(f"limb_rounds must be an integer >= 0, got {self.limb_rounds!r}")
         if not isinstance(self.limb_min_gain, (int, float, np.integer, np.floating)) or not 0 <= self.limb_min_gain < 1:
@@ -1353,10 +1382,13 @@ class DeformMatcher(Matcher):
     def register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
         """Deform the source onto the target (the registration behind :meth:`match`).
 
-        A mesh with more than ``working_vertices`` vertices is registered through a
-        decimated copy (:func:`~topomatch.mesh.decimate.decimate`); the copy's
-        displacements are carried to the source's own vertices by barycentric
-        interpolation (:func:`~topomatch.mesh.decimate.surface_weights`).
+        When a mesh has more than ``working_vertices`` vertices, the pair is registered
+        once per size of ``working_sizes``: each mesh above the size through a decimated
+        copy (:func:`~topomatch.mesh.decimate.decimate`), whose displacements are carried
+        to the source's own vertices by barycentric interpolation
+        (:func:`~topomatch.mesh.decimate.surface_weights`); of these registrations the one
+        with the lowest full-resolution score (the fit residual of the carried-back source
+        against the full target, plus ``distortion_weight`` x its distortion) is returned.
 
         Parameters
         ----------
@@ -1376,16 +1408,41 @@ class DeformMatcher(Matcher):
         wv = self.working_vertices
         if wv is None or (source.n_vertices <= wv and target.n_vertices <= wv):
             return self._register(source, target, settings)
-        t0 = time.perf_counter()
-        src, tgt = decimate(source, int(wv)), decimate(target, int(wv))
-        t1 = time.perf_counter()
-        deformed, info = self._register(src, tgt, settings)
-        t2 = time.perf_counter()
-        if src is not source:
-            deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
-        info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
-        info["seconds"]["decimation"] = t1 - t0
-        info["seconds"]["refinement"] += time.perf_counter() - t2
+        scale = float(np.sqrt(source.area))
+        samples = (
+            farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0),
+            farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0),
+        )
+        tree = PointTree(target.vertices)
+        runs: list[tuple[float, int, FloatArray, dict[str, Any]]] = []
+        done: set[tuple[int, int]] = set()
+        seconds = {"decimation": 0.0, "hypotheses_and_verification": 0.0, "refinement": 0.0}
+        for size in (int(x) for x in self.working_sizes):
+            t0 = time.perf_counter()
+            src, tgt = decimate(source, size), decimate(target, size)
+            seconds["decimation"] += time.perf_counter() - t0
+            if (src.n_vertices, tgt.n_vertices) in done:  # e.g. both meshes within two sizes
+                continue
+            done.add((src.n_vertices, tgt.n_vertices))
+            deformed, info = self._register(src, tgt, settings)
+            t2 = time.perf_counter()
+            if src is not source:
+                deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
+            # judged at full resolution: the copies' own residuals are not comparable
+            residual = fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
+            info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
+            info["full_residual"] = residual
+            seconds["hypotheses_and_verification"] += info["seconds"]["hypotheses_and_verification"]
+            seconds["refinement"] += info["seconds"]["refinement"] + time.perf_counter() - t2
+            runs.append((residual + self.distortion_weight * float(info["distortion"]), size, deformed, info))
+        k = int(np.argmin([r[0] for r in runs]))  # the first of equals: the smaller copy
+        _, _, deformed, info = runs[k]
+        info["working_sizes"] = {
+            str(size): {"vertices": i["working_vertices"], "score": sc, "full_residual": i["full_residual"], "hypothesis": i["hypothesis"]}
+            for sc, size, _, i in runs
+        }
+        info["working_size"] = runs[k][1]
+        info["seconds"] = seconds
         return deformed, info
 
     def _register(
