@@ -42,9 +42,11 @@
    the features' weight falling to zero; every target vertex then takes the nearest
    deformed source vertex with a compatible normal (:func:`map_from_deformed`).
 
-Meshes larger than ``working_vertices`` (12,000 by default) go through steps 1-7 as
-decimated copies, whose deformation is carried back to the full source before the map
-is read off.
+A pair with a mesh larger than ``working_vertices`` (12,000 by default) goes through
+steps 1-7 as decimated copies of each of ``working_sizes`` (8,000, 12,000 and 20,000
+vertices); each copy's deformation is carried back to the full source, and the one
+that fits the full target best (residual plus weighted distortion) is kept before the
+map is read off.
 """
 
 from __future__ import annotations
