@@ -54,6 +54,16 @@ def test_graph_structure(pair):
     assert np.all(g.links[:, 0] < g.links[:, 1])
     np.testing.assert_allclose(np.asarray(g.skin.sum(axis=1)).ravel(), 1.0, atol=1e-12)
     assert g.labels.shape == (src.n_vertices,) and set(np.unique(g.labels)) == set(range(80))
+    # the first node: vertex 0 by default, or the given vertex (the next one a face uses)
+    assert g.nodes[0] == 0
+    assert build_deformation_graph(src.vertices, src.faces, 80, first=1234).nodes[0] == 1234
+    V = np.vstack([src.vertices, src.vertices[:1]])  # vertex n is used by no face
+    F = src.faces.copy()
+    assert build_deformation_graph(V, F, 80, first=src.n_vertices - 1).nodes[0] == src.n_vertices - 1
+    assert build_deformation_graph(V, F, 80, first=src.n_vertices).nodes[0] == src.n_vertices - 1
+    for bad in (-1, src.n_vertices + 1, 2.5):
+        with pytest.raises(ValueError, match="first"):
+            build_deformation_graph(V, F, 80, first=bad)
 
 
 def test_registration_leaves_a_shared_graph_untouched(pair):
@@ -234,7 +244,7 @@ def test_deform_registers_large_meshes_through_decimated_copies(pair):
     c = small.match(src, tgt)
     n1, n2 = c.info["working_vertices"]
     assert abs(n1 - 1000) < 50 and abs(n2 - 1000) < 50 and c.info["seconds"]["decimation"] >= 0
-    assert list(c.info["working_sizes"]) == ["1000"] and c.info["working_size"] == 1000
+    assert [r["working_size"] for r in c.info["runs"]] == [1000] and c.info["run"] == 0
     assert c.p2p_21.shape == (tgt.n_vertices,) and c.p2p_21.min() >= 0
     err = np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1) / np.sqrt(src.area)
     assert np.mean(err) < 0.06
@@ -256,17 +266,36 @@ def test_deform_keeps_the_working_size_with_the_best_full_resolution_score(pair)
     kw = {"hypotheses": (("hks", 30, False),), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200, "working_vertices": 1000}
     # 3,000 and 4,000 both leave the meshes as they are: one registration for the two
     c = make_matcher("deform", working_sizes=(1000, 1500, 3000, 4000), **kw).match(src, tgt)
-    sizes = c.info["working_sizes"]
-    assert list(sizes) == ["1000", "1500", "3000"]
-    assert sizes["3000"]["vertices"] == (src.n_vertices, tgt.n_vertices)
-    scores = {k: v["score"] for k, v in sizes.items()}
-    best = min(scores, key=scores.get)
-    assert c.info["working_size"] == int(best) and c.info["working_vertices"] == sizes[best]["vertices"]
+    runs = c.info["runs"]
+    assert [r["working_size"] for r in runs] == [1000, 1500, 3000]
+    assert runs[2]["vertices"] == (src.n_vertices, tgt.n_vertices)
+    best = int(np.argmin([r["score"] for r in runs]))
+    assert c.info["run"] == best and c.info["working_vertices"] == runs[best]["vertices"]
     # the score is the full-resolution residual plus the weighted distortion of the kept registration
-    assert sizes[best]["score"] == pytest.approx(sizes[best]["full_residual"] + 0.025 * c.info["distortion"])
+    assert runs[best]["score"] == pytest.approx(runs[best]["full_residual"] + 0.025 * c.info["distortion"])
     # the kept map is that size's own registration (deterministic)
-    alone = make_matcher("deform", working_sizes=(int(best),), **kw).match(src, tgt)
+    alone = make_matcher("deform", working_sizes=(runs[best]["working_size"],), **kw).match(src, tgt)
     np.testing.assert_array_equal(alone.p2p_21, c.p2p_21)
+
+
+def test_deform_keeps_the_sampling_start_with_the_best_score(pair):
+    src, tgt, _ = pair
+    kw = {"hypotheses": (("hks", 30, False),), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200}
+    one = make_matcher("deform", **kw).match(src, tgt)
+    assert "runs" not in one.info  # one start: registered as before
+    c = make_matcher("deform", n_starts=3, **kw).match(src, tgt)
+    runs = c.info["runs"]
+    assert [r["start"] for r in runs] == [0, 1, 2] and all(r["working_size"] is None for r in runs)
+    scores = [r["score"] for r in runs]
+    assert c.info["run"] == int(np.argmin(scores))
+    # start 0 is the single registration; the others sample elsewhere and differ
+    first = make_matcher("deform", n_starts=3, **kw)._register(src, tgt, make_matcher("deform", **kw)._check(), 0)[0]
+    np.testing.assert_array_equal(first, make_matcher("deform", **kw).register(src, tgt)[0])
+    if c.info["run"] == 0:
+        np.testing.assert_array_equal(c.p2p_21, one.p2p_21)
+    assert len({round(s, 12) for s in scores}) > 1
+    with pytest.raises(ValueError, match="n_starts"):
+        make_matcher("deform", n_starts=0, **kw).match(src, tgt)
 
 
 def test_deform_matcher_rejects_bad_parameters(pair):

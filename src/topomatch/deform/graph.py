@@ -66,6 +66,7 @@ def build_deformation_graph(
     *,
     skin_radius: float = 1.0,
     random_state: int | np.random.Generator | None = None,
+    first: int | None = None,
 ) -> DeformationGraph:
     """Sample nodes on a mesh and build links and skinning weights.
 
@@ -78,7 +79,11 @@ def build_deformation_graph(
     skin_radius : float
         Gaussian width of the skinning weights in units of the mean link length.
     random_state : int, Generator or None
-        First farthest-point sample.
+        First farthest-point sample (drawn among the vertices that faces use).
+    first : int, optional
+        First farthest-point sample as a vertex index: that vertex, or when no face
+        uses it the next vertex that one does (the last such vertex if none follows).
+        Default: the first vertex a face uses (or ``random_state``'s draw).
 
     Returns
     -------
@@ -92,12 +97,16 @@ def build_deformation_graph(
     used = np.zeros(n, dtype=bool)
     used[f.ravel()] = True
     cand = np.flatnonzero(used)
-    first = 0
-    if random_state is not None:
+    start = 0
+    if first is not None:
+        if not isinstance(first, (int, np.integer)) or not 0 <= first < n:
+            raise ValueError(f"first must be a vertex index in [0, {n}), got {first!r}")
+        start = min(int(np.searchsorted(cand, first)), len(cand) - 1)
+    elif random_state is not None:
         from topomatch._validation import check_random_state
 
-        first = int(check_random_state(random_state).integers(len(cand)))
-    nodes = cand[farthest_point_sampling(min(n_nodes, len(cand)), points=v[cand], first=first)]
+        start = int(check_random_state(random_state).integers(len(cand)))
+    nodes = cand[farthest_point_sampling(min(n_nodes, len(cand)), points=v[cand], first=start)]
     g = edge_graph(v, f)
     dist, _, src = csgraph.dijkstra(g, directed=False, indices=nodes, min_only=True, return_predecessors=True)
     node_of_vertex = np.full(n, -1, dtype=np.int64)

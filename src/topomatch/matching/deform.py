@@ -508,6 +508,11 @@ of them; the same turns as searching all on the training pairs tried; at 0.5, th
 samples' spacing, the search is 3x faster but misses kid14's turn: 3.97 -> 4.13)."""
 
 
+def _start_vertex(n_vertices: int, start: int, n_starts: int) -> int:
+    """Where start ``start`` of ``n_starts`` begins its farthest-point sampling: vertex ``start x n / n_starts``."""
+    return (int(start) * int(n_vertices)) // max(int(n_starts), 1)
+
+
 def _thread_map(fn: Callable[[_T], _R], items: Sequence[_T], n_threads: int) -> list[_R]:
     """``[fn(x) for x in items]``, on up to ``n_threads`` threads (in order)."""
     n = min(n_threads, len(items))
@@ -962,7 +967,17 @@ class DeformMatcher(Matcher):
         (Euclidean error x100 on kid00) 8,000 alone gave 3.92, 12,000 6.94, 20,000 3.74,
         and the three judged at full resolution **3.44** (``docs/flagship.md``,
         attempt #84), at about the three registrations' summed time. ``(12000,)``
-        registers as session 25 did. ``info["working_sizes"]`` has every size's score.
+        registers as session 25 did. ``info["runs"]`` lists every registration's size,
+        start and score, ``info["run"]`` the kept one.
+    n_starts : int
+        Registrations per pair (and per working size) whose farthest-point sampling
+        (samples and graph nodes) begins at vertex ``k n / n_starts`` of each mesh,
+        ``k = 0 .. n_starts - 1``; the one with the lowest score on the full meshes
+        (as for ``working_sizes``, on the samples of start 0) is kept. The choices
+        among hypotheses and limb turns are knife edges on the folded poses, and a
+        different sampling tips them either way (attempt #85, ``docs/flagship.md``);
+        ``n_starts`` registrations cost ``n_starts`` times the time. ``1`` (default):
+        one registration, from vertex 0.
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
@@ -1010,6 +1025,7 @@ class DeformMatcher(Matcher):
         limb_judge_iterations: int | None = None,
         working_vertices: int | None = 12000,
         working_sizes: tuple[int, ...] = WORKING_SIZES,
+        n_starts: int = 1,
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
     ) -> None:
@@ -1043,6 +1059,7 @@ class DeformMatcher(Matcher):
         self.limb_judge_iterations = limb_judge_iterations
         self.working_vertices = working_vertices
         self.working_sizes = working_sizes
+        self.n_starts = n_starts
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
 
@@ -1097,7 +1114,7 @@ class DeformMatcher(Matcher):
             raise ValueError(f"feature_weight must be a finite number >= 0, got {w!r}")
         if not isinstance(self.continue_icp_iterations, (int, np.integer)) or self.continue_icp_iterations < 0:
             raise ValueError(f"continue_icp_iterations must be an integer >= 0, got {self.continue_icp_iterations!r}")
-        for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices"):
+        for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices", "n_starts"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -1139,9 +1156,12 @@ class DeformMatcher(Matcher):
         return _thread_map(fn, items, self._n_threads())
 
     def _setup(
-        self, source: TriangleMesh, target: TriangleMesh
+        self, source: TriangleMesh, target: TriangleMesh, start: int = 0
     ) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph, EigenbasisJob | None]:
         """Check the pair; farthest-point samples of both shapes and the coarse graph (shared by every step).
+
+        ``start`` (of ``n_starts``) says where the farthest-point sampling of the
+        samples and of the graph's nodes begins (:func:`_start_vertex`).
 
         With two or more threads the target's eigenbasis starts in a forked process
         first (the eigensolver holds the GIL: computed here it would stall the
@@ -1156,9 +1176,10 @@ class DeformMatcher(Matcher):
         target_basis = None
         if self.background_eigenbasis and self._n_threads() > 1 and self.accept_residual <= 0:
             target_basis = target.eigenbasis_in_background(self.k_zoomout)
-        s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0)
-        s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0)
-        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices))
+        v1, v2 = (_start_vertex(m.n_vertices, start, self.n_starts) for m in (source, target))
+        s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=v1)
+        s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=v2)
+        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices), first=v1)
         return (s1, s2), graph, target_basis
 
     def verify_hypotheses(self, source: TriangleMesh, target: TriangleMesh) -> tuple[list[Hypothesis], list[RegistrationResult]]:
@@ -1253,10 +1274,13 @@ class DeformMatcher(Matcher):
         order: IndexArray,
         samples: tuple[IndexArray, IndexArray],
         graph: DeformationGraph,
+        start: int = 0,
     ) -> tuple[int, RegistrationResult, list[tuple[str, int]], dict[str, tuple[float, float]], list[dict]]:
         """Steps 3-6: swaps, continuation and choice, limb turns, fine registration."""
         W = target.vertices
-        fine_graph = build_deformation_graph(source.vertices, source.faces, min(self.fine_nodes, source.n_vertices))
+        fine_graph = build_deformation_graph(
+            source.vertices, source.faces, min(self.fine_nodes, source.n_vertices), first=_start_vertex(source.n_vertices, start, self.n_starts)
+        )
         fine = RegistrationSchedule(
             n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.fine_icp_iterations, alpha_icp=tuple(self.fine_alpha),
             sigma_icp=FINE_SIGMA,
@@ -1391,6 +1415,8 @@ class DeformMatcher(Matcher):
         (:func:`~topomatch.mesh.decimate.surface_weights`); of these registrations the one
         with the lowest full-resolution score (the fit residual of the carried-back source
         against the full target, plus ``distortion_weight`` x its distortion) is returned.
+        With ``n_starts > 1`` each size is registered from that many sampling starts,
+        judged the same way.
 
         Parameters
         ----------
@@ -1408,7 +1434,8 @@ class DeformMatcher(Matcher):
         """
         settings = self._check()
         wv = self.working_vertices
-        if wv is None or (source.n_vertices <= wv and target.n_vertices <= wv):
+        large = wv is not None and (source.n_vertices > wv or target.n_vertices > wv)
+        if not large and self.n_starts == 1:
             return self._register(source, target, settings)
         scale = float(np.sqrt(source.area))
         samples = (
@@ -1416,48 +1443,49 @@ class DeformMatcher(Matcher):
             farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0),
         )
         tree = PointTree(target.vertices)
-        runs: list[tuple[float, int, FloatArray, dict[str, Any]]] = []
-        done: set[tuple[int, int]] = set()
+        runs: list[tuple[float, FloatArray, dict[str, Any]]] = []
+        done: set[tuple[int, int, int]] = set()
         seconds = {"decimation": 0.0, "hypotheses_and_verification": 0.0, "refinement": 0.0}
-        for size in (int(x) for x in self.working_sizes):
+        for size in [int(x) for x in self.working_sizes] if large else [None]:
             t0 = time.perf_counter()
-            src, tgt = decimate(source, size), decimate(target, size)
+            src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
             seconds["decimation"] += time.perf_counter() - t0
-            if (src.n_vertices, tgt.n_vertices) in done:  # e.g. both meshes within two sizes
-                continue
-            done.add((src.n_vertices, tgt.n_vertices))
-            deformed, info = self._register(src, tgt, settings)
-            t2 = time.perf_counter()
-            if src is not source:
-                deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
-            # judged at full resolution: the copies' own residuals are not comparable
-            residual = fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
-            info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
-            info["full_residual"] = residual
-            seconds["hypotheses_and_verification"] += info["seconds"]["hypotheses_and_verification"]
-            seconds["refinement"] += info["seconds"]["refinement"] + time.perf_counter() - t2
-            runs.append((residual + self.distortion_weight * float(info["distortion"]), size, deformed, info))
-        k = int(np.argmin([r[0] for r in runs]))  # the first of equals: the smaller copy
-        _, _, deformed, info = runs[k]
-        info["working_sizes"] = {
-            str(size): {"vertices": i["working_vertices"], "score": sc, "full_residual": i["full_residual"], "hypothesis": i["hypothesis"]}
-            for sc, size, _, i in runs
-        }
-        info["working_size"] = runs[k][1]
+            for start in range(int(self.n_starts)):
+                if (src.n_vertices, tgt.n_vertices, start) in done:  # e.g. both meshes within two sizes
+                    continue
+                done.add((src.n_vertices, tgt.n_vertices, start))
+                deformed, info = self._register(src, tgt, settings, start)
+                t2 = time.perf_counter()
+                if src is not source:
+                    deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
+                # judged on the full meshes and one set of samples: the runs' own residuals
+                # (their copies, their samples) are not comparable
+                residual = fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
+                info["run"] = {"working_size": size, "start": start, "vertices": (src.n_vertices, tgt.n_vertices), "full_residual": residual,
+                               "score": residual + self.distortion_weight * float(info["distortion"]), "hypothesis": info["hypothesis"]}
+                if size is not None:
+                    info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
+                seconds["hypotheses_and_verification"] += info["seconds"]["hypotheses_and_verification"]
+                seconds["refinement"] += info["seconds"]["refinement"] + time.perf_counter() - t2
+                runs.append((info["run"]["score"], deformed, info))
+        k = int(np.argmin([r[0] for r in runs]))  # the first of equals: the smaller copy, the earlier start
+        _, deformed, info = runs[k]
+        info["runs"] = [i.pop("run") for _, _, i in runs]
+        info["run"] = k
         info["seconds"] = seconds
         return deformed, info
 
     def _register(
-        self, source: TriangleMesh, target: TriangleMesh, settings: list[tuple[str, int, bool]]
+        self, source: TriangleMesh, target: TriangleMesh, settings: list[tuple[str, int, bool]], start: int = 0
     ) -> tuple[FloatArray, dict[str, Any]]:
-        """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`)."""
+        """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`), one start."""
         t0 = time.perf_counter()
-        samples, graph, target_basis = self._setup(source, target)
+        samples, graph, target_basis = self._setup(source, target, start)
         hyps, results = self._verify(source, target, settings, samples, graph, target_basis)
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
         with one_blas_thread():
-            i_best, r_best, swaps, continued, limbs = self._refine(source, target, hyps, results, order, samples, graph)
+            i_best, r_best, swaps, continued, limbs = self._refine(source, target, hyps, results, order, samples, graph, start)
         t2 = time.perf_counter()
         info = {
             "hypothesis": hyps[i_best].label,
