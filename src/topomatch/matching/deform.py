@@ -227,13 +227,17 @@ def spectral_hypotheses(
 
 RIGID_FRAMES = ("as-given", "principal-axes")
 
-ACCURATE: Mapping[str, Any] = MappingProxyType({"fine_icp_iterations": 80, "limb_judge": "fine", "limb_judge_iterations": 25})
-""":class:`DeformMatcher` settings for when a registration may take about twice the
-default's time: each limb turn judged after a 25-iteration fine registration, and 80
-final closest-point iterations instead of 40. On the training pairs (kid00 -> kid01..kid15,
-mean geodesic error x100, Dijkstra, pooled) 3.54 -> 3.02 (kid13 6.67 -> 2.34, kid14
-9.93 -> 8.07); the ``template`` matcher registers with them by default, since each of
-its registrations serves every pair of the shape (``docs/flagship.md``, attempt #55)."""
+ACCURATE: Mapping[str, Any] = MappingProxyType({"n_starts": 5})
+""":class:`DeformMatcher` settings for when a registration may take about five times the
+default's: five registrations from different farthest-point sampling starts, the one
+that fits best kept (``n_starts``). On the training pairs (kid00 -> kid01..kid15, mean
+geodesic error x100, Dijkstra, pooled) 2.70 -> 2.36 (kid14 7.24 -> 5.04, kid15 14.85 ->
+12.47), on the built-in topkids25-style pairs 1.70 -> 1.37; the ``template`` matcher
+registers with them by default, since each of its registrations serves every pair of
+the shape (``docs/flagship.md``, attempt #85). Until session 26 these were
+``{"fine_icp_iterations": 80, "limb_judge": "fine", "limb_judge_iterations": 25}``
+(training pairs 2.63; with three starts 2.57 against 2.53 for the default settings
+with three starts)."""
 
 
 def _rigid_icp(

@@ -73,10 +73,9 @@ class TemplateMatcher(Matcher):
     deform : dict, optional
         Hyperparameters of the :class:`DeformMatcher` that registers the template, on
         top of :data:`~topomatch.matching.deform.ACCURATE` (the registration's slower,
-        more accurate settings: a collection of ``n`` shapes needs ``n`` registrations
-        for its ``n (n - 1)`` pairs, so their time is shared). Give the ``ACCURATE``
-        keys (e.g. ``{"fine_icp_iterations": 40, "limb_judge": "coarse",
-        "limb_judge_iterations": None}``) to register as ``deform`` does by default.
+        more accurate settings, five sampling starts: a collection of ``n`` shapes
+        needs ``n`` registrations for its ``n (n - 1)`` pairs, so their time is
+        shared). ``{"n_starts": 1}`` registers as ``deform`` does by default.
 
     Notes
     -----
