@@ -58,6 +58,7 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     np.testing.assert_array_equal(c.p2p_21, direct.p2p_21)
     # two sampling starts per registration, the better kept
     assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [2]
+    assert len(c.info["runs"]["target"]["runs"]) == 2 and "source" not in c.info["runs"]
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5
     assert make_matcher("template", deform={"n_starts": 1})._deformer().get_params()["n_starts"] == 1

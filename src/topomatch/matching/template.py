@@ -169,6 +169,7 @@ class TemplateMatcher(Matcher):
         template = self.template_
         status: dict[str, str] = {}
         hyp: dict[str, str] = {}
+        runs: dict[str, dict[str, Any]] = {}  # the registrations' sampling starts / working sizes, when several
         if self._is_template(target):
             t2m = np.arange(template.n_vertices, dtype=np.int64)
             status["target"] = "is the template"
@@ -176,6 +177,8 @@ class TemplateMatcher(Matcher):
             deformed_t, info_t, status["target"] = self._registration(target, deformer)
             t2m = map_from_deformed(target, deformed_t, template.faces)
             hyp["target"] = info_t["hypothesis"]
+            if "runs" in info_t:
+                runs["target"] = {"kept": info_t["run"], "runs": info_t["runs"]}
         if self._is_template(source):
             p2p = t2m
             status["source"] = "is the template"
@@ -187,5 +190,7 @@ class TemplateMatcher(Matcher):
             m2s = map_from_deformed(landed, source.vertices, source.faces)
             p2p = compose_through_template(t2m, m2s)
             hyp["source"] = info_s["hypothesis"]
-        info = {"template": self.template_name_, "registrations": status, "hypotheses": hyp, "seconds": time.perf_counter() - t0}
+            if "runs" in info_s:
+                runs["source"] = {"kept": info_s["run"], "runs": info_s["runs"]}
+        info = {"template": self.template_name_, "registrations": status, "hypotheses": hyp, "runs": runs, "seconds": time.perf_counter() - t0}
         return Correspondence(p2p, info=info)
