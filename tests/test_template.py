@@ -40,6 +40,26 @@ def test_template_needs_a_template(tmp_path, builtin):
         make_matcher("template", deform={"bogus": 1}).fit([builtin["syn00"]])
     with pytest.raises(ValueError, match="limb_rounds"):
         make_matcher("template", deform={"limb_rounds": -1}).fit([builtin["syn00"]])
+    with pytest.raises(ValueError, match="copy_starts"):
+        make_matcher("template", copy_starts=0).fit([builtin["syn00"]])
+
+
+def test_template_registers_through_working_copies_with_copy_starts(builtin):
+    # a registration through working copies runs every start at every copy size, so
+    # the template uses copy_starts (1) there instead of ACCURATE's five starts
+    small = builtin["syn07"].mesh
+    m = make_matcher("template").fit([builtin["syn00"]])
+    deformer = m._deformer()
+    assert m._deformer_for(small, deformer) is deformer and deformer.n_starts == 5
+    above = make_matcher("template", deform={"working_vertices": small.n_vertices - 1}).fit([builtin["syn00"]])
+    d = above._deformer()
+    assert above._deformer_for(small, d).n_starts == 1
+    assert above._deformer_for(small, d).get_params() == {**d.get_params(), "n_starts": 1}
+    # None: the deformer's own n_starts at every size
+    assert make_matcher("template", deform={"working_vertices": small.n_vertices - 1}, copy_starts=None).fit(
+        [builtin["syn00"]]
+    )._deformer_for(small, d).n_starts == 5
+    assert above._deformer_for(small, d) is not d and d.n_starts == 5
 
 
 @pytest.fixture(scope="module")
