@@ -1409,6 +1409,11 @@ class DeformMatcher(Matcher):
             starts[i_best], score = r.deformed, new
         return rounds, (fine_now if fine_schedule == final_schedule else None)
 
+    def through_copies(self, source: TriangleMesh, target: TriangleMesh) -> bool:
+        """Whether :meth:`register` registers the pair through working copies (a mesh above ``working_vertices``)."""
+        wv = self.working_vertices
+        return wv is not None and max(source.n_vertices, target.n_vertices) > wv
+
     def register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
         """Deform the source onto the target (the registration behind :meth:`match`).
 
@@ -1437,8 +1442,7 @@ class DeformMatcher(Matcher):
             Diagnostics, as in ``Correspondence.info``.
         """
         settings = self._check()
-        wv = self.working_vertices
-        large = wv is not None and (source.n_vertices > wv or target.n_vertices > wv)
+        large = self.through_copies(source, target)
         if not large and self.n_starts == 1:
             return self._register(source, target, settings)
         scale = float(np.sqrt(source.area))

@@ -122,9 +122,7 @@ class TemplateMatcher(Matcher):
 
     def _deformer_for(self, mesh: TriangleMesh, deformer: DeformMatcher) -> DeformMatcher:
         """The registration of the template onto ``mesh``: ``copy_starts`` starts when it goes through working copies."""
-        wv = deformer.working_vertices
-        large = wv is not None and max(mesh.n_vertices, self.template_.n_vertices) > wv
-        if not large or self.copy_starts is None or int(self.copy_starts) == deformer.n_starts:
+        if not deformer.through_copies(self.template_, mesh) or self.copy_starts is None or int(self.copy_starts) == deformer.n_starts:
             return deformer
         return DeformMatcher(**{**deformer.get_params(), "n_starts": int(self.copy_starts)})
 
