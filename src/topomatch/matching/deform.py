@@ -94,7 +94,7 @@ from topomatch.matching.base import Correspondence, Matcher
 from topomatch.matching.fmap import spectral_descriptors
 from topomatch.mesh import TriangleMesh
 from topomatch.mesh.decimate import decimate, surface_weights
-from topomatch.mesh.geometry import axis_rotation, edges_with_counts, vertex_normals
+from topomatch.mesh.geometry import axis_rotation, edges_with_counts, face_areas, vertex_normals
 from topomatch.mesh.mesh import EigenbasisJob
 from topomatch.mesh.sampling import farthest_point_sampling
 from topomatch.typing import BoolArray, FloatArray, IndexArray
@@ -107,6 +107,7 @@ __all__ = [
     "bend_in_two",
     "local_wks_features",
     "map_from_deformed",
+    "pose_hypotheses",
     "rigid_hypotheses",
     "source_limbs",
     "spectral_hypotheses",
@@ -312,16 +313,7 @@ def rigid_hypotheses(
     scale = float(np.sqrt(target.area / source.area))
     c1 = V.mean(axis=0)
     c2 = target.vertices.mean(axis=0)
-    starts: list[tuple[str, FloatArray]] = []
-    if "as-given" in frames:
-        starts.append(("rigid as-given", np.eye(3)))
-    if "principal-axes" in frames:
-        A1 = np.linalg.svd(V - c1, full_matrices=False)[2]
-        A2 = np.linalg.svd(target.vertices - c2, full_matrices=False)[2]
-        flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(A1) * np.linalg.det(A2))])
-        for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
-            R = A2.T @ np.diag(signs) @ flip @ A1
-            starts.append(("rigid axes " + "".join("+" if x > 0 else "-" for x in signs), R))
+    starts = [("rigid " + (suffix.strip() or "as-given"), R) for suffix, R in _frame_rotations(V, target.vertices, frames)]
     X = scale * V[s1]
     NX = source.vertex_normals[s1]
     for label, R0 in starts:
@@ -428,27 +420,120 @@ def articulated_hypotheses(
         A map from the target samples to source vertices.
     """
     basis = source.eigenbasis(2)
+    bent = bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles)
+    scale = float(np.sqrt(target.area / source.area))
+    posed = [(f"bent {label}", Vb, scale) for label, Vb in bent]
+    yield from _posed_hypotheses(target, source.faces, samples_1, samples_2, posed, ("as-given",), n_keep, icp_iterations)
+
+
+def _posed_hypotheses(
+    target: TriangleMesh,
+    faces: IndexArray,
+    samples_1: IndexArray,
+    samples_2: IndexArray,
+    posed: Sequence[tuple[str, FloatArray, float]],
+    frames: tuple[str, ...],
+    n_keep: int,
+    icp_iterations: int,
+) -> Iterator[Hypothesis]:
+    """Rigidly align copies of the source in other poses to the target; the ``n_keep`` best fitting as hypotheses.
+
+    Each ``(label, vertices, scale)`` of ``posed`` is scaled, centred on the target and
+    rotated by each start of ``frames`` (as in :func:`rigid_hypotheses`), refined by
+    rigid ICP on the samples and scored by its mean capped two-sided distance to the
+    target samples; the ``n_keep`` best are yielded, each target sample taking the
+    nearest posed, aligned source vertex with a compatible normal.
+    """
     s1 = np.asarray(samples_1)
     W = target.vertices[samples_2]
     Nw = target.vertex_normals[samples_2]
-    scale = float(np.sqrt(target.area / source.area))
     cap = 0.05 * float(np.sqrt(target.area))
     c2 = target.vertices.mean(axis=0)
     tree = PointTree(W)
     scored = []
-    for label, Vb in bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles):
-        Nb = vertex_normals(Vb, source.faces)
-        R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, np.eye(3), c2 - scale * Vb.mean(axis=0), icp_iterations)
-        X = scale * Vb[s1] @ R.T + t
-        NX = Nb[s1] @ R.T
-        _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
-        _, d2 = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
-        residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
-        scored.append((residual, label, Vb, Nb, R, t))
+    for name, Vb, scale in posed:
+        Nb = vertex_normals(Vb, faces)
+        for suffix, R0 in _frame_rotations(Vb, target.vertices, frames):
+            R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, R0, c2 - scale * (R0 @ Vb.mean(axis=0)), icp_iterations)
+            X = scale * Vb[s1] @ R.T + t
+            NX = Nb[s1] @ R.T
+            _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
+            _, d2 = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
+            residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
+            scored.append((residual, name + suffix, Vb, Nb, R, t, scale))
     scored.sort(key=lambda x: x[0])
-    for residual, label, Vb, Nb, R, t in scored[:n_keep]:
-        logger.debug("bent %s: rigid residual %.4f", label, residual / np.sqrt(target.area))
-        yield Hypothesis(f"bent {label}", _nearest_aligned(W, Nw, scale * Vb @ R.T + t, Nb @ R.T))
+    for residual, label, Vb, Nb, R, t, scale in scored[:n_keep]:
+        logger.debug("%s: rigid residual %.4f", label, residual / np.sqrt(target.area))
+        yield Hypothesis(label, _nearest_aligned(W, Nw, scale * Vb @ R.T + t, Nb @ R.T))
+
+
+def _frame_rotations(V: FloatArray, target_vertices: FloatArray, frames: tuple[str, ...]) -> list[tuple[str, FloatArray]]:
+    """Label suffixes and starting rotations of ``V`` onto the target for ``frames`` (see :func:`rigid_hypotheses`)."""
+    out: list[tuple[str, FloatArray]] = []
+    if "as-given" in frames:
+        out.append(("", np.eye(3)))
+    if "principal-axes" in frames:
+        A1 = np.linalg.svd(V - V.mean(axis=0), full_matrices=False)[2]
+        A2 = np.linalg.svd(target_vertices - target_vertices.mean(axis=0), full_matrices=False)[2]
+        flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(A1) * np.linalg.det(A2))])
+        for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
+            out.append((" axes " + "".join("+" if x > 0 else "-" for x in signs), A2.T @ np.diag(signs) @ flip @ A1))
+    return out
+
+
+def pose_hypotheses(
+    source: TriangleMesh,
+    target: TriangleMesh,
+    samples_1: IndexArray,
+    samples_2: IndexArray,
+    poses: Sequence[tuple[str, FloatArray]],
+    *,
+    n_keep: int = 3,
+    frames: tuple[str, ...] = RIGID_FRAMES,
+    icp_iterations: int = 15,
+) -> Iterator[Hypothesis]:
+    """Rigid hypotheses of the source in other, known poses (e.g. the training shapes' poses).
+
+    A prior for a source that has been seen in other poses: a template with training
+    shapes whose ground truth gives the template's vertices in their poses
+    (:func:`~topomatch.matching.template.pose_from_ground_truth`). Each posed copy
+    is scaled to the target's area, centred on it, started from each rotation of
+    ``frames`` (as for :func:`rigid_hypotheses`), refined by rigid ICP on the samples
+    and scored by its mean capped two-sided distance to the target; the ``n_keep``
+    best alignments (over all poses and starts) are yielded, each target sample taking
+    the nearest posed, aligned source vertex with a compatible normal.
+
+    Parameters
+    ----------
+    source, target : TriangleMesh
+    samples_1 : ndarray, shape (m1,)
+        Source vertex samples.
+    samples_2 : ndarray, shape (m2,)
+        Target vertex samples.
+    poses : sequence of (str, ndarray of shape (n_source, 3))
+        A name and the source's vertex positions in that pose (the source's faces).
+    n_keep : int
+        How many alignments to yield, best fitting first.
+    frames : tuple of str
+        Any of ``"as-given"`` and ``"principal-axes"``.
+    icp_iterations : int
+
+    Yields
+    ------
+    Hypothesis
+        Labelled ``"pose <name>"`` (plus the principal-axes signs), a map from the
+        target samples to source vertices.
+    """
+    bad = [f for f in frames if f not in RIGID_FRAMES]
+    if bad:
+        raise ValueError(f"pose frames must be among {RIGID_FRAMES}, got {bad}")
+    posed = []
+    for name, P in _checked_poses(source, poses):
+        area = float(face_areas(P, source.faces).sum())
+        if not area > 0:
+            raise ValueError(f"pose {name!r}: the posed source has zero area")
+        posed.append((f"pose {name}", P, float(np.sqrt(target.area / area))))
+    yield from _posed_hypotheses(target, source.faces, samples_1, samples_2, posed, frames, n_keep, icp_iterations)
 
 
 def source_limbs(graph: DeformationGraph, *, min_nodes: int = 3) -> list[IndexArray]:
@@ -763,6 +848,22 @@ def local_wks_features(
     return zs / spread, ((wt - mu) @ P) / spread
 
 
+def _checked_poses(source: TriangleMesh, poses: Sequence[tuple[str, FloatArray]] | None) -> list[tuple[str, FloatArray]]:
+    """``poses`` as a list of (name, float array of the source's vertex shape); a clear error otherwise."""
+    out = []
+    for item in poses or ():
+        if not isinstance(item, (tuple, list)) or len(item) != 2:
+            raise ValueError(f"poses must be (name, vertices) pairs, got {type(item).__name__}")
+        name, P = item
+        P = np.asarray(P, dtype=np.float64)
+        if P.shape != source.vertices.shape or not np.isfinite(P).all():
+            raise ValueError(
+                f"pose {name!r} of {source.name or 'the source'}: vertices must be a finite array of shape {source.vertices.shape}, got {P.shape}"
+            )
+        out.append((str(name), P))
+    return out
+
+
 def map_from_deformed(target: TriangleMesh, deformed: FloatArray, source_faces: IndexArray) -> IndexArray:
     """Read a map off a registration: each target vertex takes the nearest deformed source vertex.
 
@@ -982,6 +1083,13 @@ class DeformMatcher(Matcher):
         different sampling tips them either way (attempt #85, ``docs/flagship.md``);
         ``n_starts`` registrations cost ``n_starts`` times the time. ``1`` (default):
         one registration, from vertex 0.
+    pose_keep : int
+        When :meth:`register` is given the source in other known poses (``poses``):
+        how many of their best rigid alignments to the target are verified as
+        hypotheses (:func:`pose_hypotheses`, started from the ``rigid_frames``). With
+        the training shapes' poses of ``kid00`` (left out when registering the pose's own
+        shape) three took the training pairs kid01-kid15 from 2.27 to 2.02 (one start;
+        attempt #86, ``docs/flagship.md``). ``0``: poses are ignored.
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
@@ -1030,6 +1138,7 @@ class DeformMatcher(Matcher):
         working_vertices: int | None = 12000,
         working_sizes: tuple[int, ...] = WORKING_SIZES,
         n_starts: int = 1,
+        pose_keep: int = 3,
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
     ) -> None:
@@ -1064,6 +1173,7 @@ class DeformMatcher(Matcher):
         self.working_vertices = working_vertices
         self.working_sizes = working_sizes
         self.n_starts = n_starts
+        self.pose_keep = pose_keep
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
 
@@ -1118,6 +1228,8 @@ class DeformMatcher(Matcher):
             raise ValueError(f"feature_weight must be a finite number >= 0, got {w!r}")
         if not isinstance(self.continue_icp_iterations, (int, np.integer)) or self.continue_icp_iterations < 0:
             raise ValueError(f"continue_icp_iterations must be an integer >= 0, got {self.continue_icp_iterations!r}")
+        if isinstance(self.pose_keep, (bool, np.bool_)) or not isinstance(self.pose_keep, (int, np.integer)) or self.pose_keep < 0:
+            raise ValueError(f"pose_keep must be an integer >= 0, got {self.pose_keep!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices", "n_starts"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
@@ -1186,10 +1298,13 @@ class DeformMatcher(Matcher):
         graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices), first=v1)
         return (s1, s2), graph, target_basis
 
-    def verify_hypotheses(self, source: TriangleMesh, target: TriangleMesh) -> tuple[list[Hypothesis], list[RegistrationResult]]:
+    def verify_hypotheses(
+        self, source: TriangleMesh, target: TriangleMesh, *, poses: Sequence[tuple[str, FloatArray]] = ()
+    ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
         """Steps 1-2: every hypothesis with its coarse registration (in the order tried).
 
         Stops after the first hypothesis whose residual is below ``accept_residual``.
+        ``poses`` as for :meth:`register`.
 
         Returns
         -------
@@ -1199,8 +1314,9 @@ class DeformMatcher(Matcher):
             selection criterion.
         """
         settings = self._check()
+        poses = _checked_poses(source, poses)
         samples, graph, target_basis = self._setup(source, target)
-        return self._verify(source, target, settings, samples, graph, target_basis)
+        return self._verify(source, target, settings, samples, graph, target_basis, poses)
 
     def _verify(
         self,
@@ -1210,6 +1326,7 @@ class DeformMatcher(Matcher):
         samples: tuple[IndexArray, IndexArray],
         graph: DeformationGraph,
         target_basis: EigenbasisJob | None = None,
+        poses: Sequence[tuple[str, FloatArray]] = (),
     ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
         """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`."""
         s1, s2 = samples
@@ -1231,6 +1348,9 @@ class DeformMatcher(Matcher):
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
             if self.articulated > 0
+            else iter(()),
+            pose_hypotheses(source, target, s1, s2, poses, n_keep=self.pose_keep, frames=tuple(self.rigid_frames))
+            if poses and self.pose_keep > 0
             else iter(()),
         )
         others = self._matcher_hypotheses(source, target, s2)
@@ -1414,7 +1534,9 @@ class DeformMatcher(Matcher):
         wv = self.working_vertices
         return wv is not None and max(source.n_vertices, target.n_vertices) > wv
 
-    def register(self, source: TriangleMesh, target: TriangleMesh) -> tuple[FloatArray, dict[str, Any]]:
+    def register(
+        self, source: TriangleMesh, target: TriangleMesh, *, poses: Sequence[tuple[str, FloatArray]] = ()
+    ) -> tuple[FloatArray, dict[str, Any]]:
         """Deform the source onto the target (the registration behind :meth:`match`).
 
         When a mesh has more than ``working_vertices`` vertices, the pair is registered
@@ -1433,6 +1555,11 @@ class DeformMatcher(Matcher):
             Shape 1, the shape that is deformed.
         target : TriangleMesh
             Shape 2.
+        poses : sequence of (str, ndarray of shape (n_source, 3)), optional
+            The source's vertices in other known poses (a name and the positions, the
+            source's faces): the ``pose_keep`` best rigid alignments of them to the
+            target join the hypotheses (:func:`pose_hypotheses`). Carried to a working
+            copy by barycentric interpolation of their displacements.
 
         Returns
         -------
@@ -1442,9 +1569,10 @@ class DeformMatcher(Matcher):
             Diagnostics, as in ``Correspondence.info``.
         """
         settings = self._check()
+        poses = _checked_poses(source, poses)
         large = self.through_copies(source, target)
         if not large and self.n_starts == 1:
-            return self._register(source, target, settings)
+            return self._register(source, target, settings, poses=poses)
         scale = float(np.sqrt(source.area))
         samples = (
             farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0),
@@ -1457,12 +1585,16 @@ class DeformMatcher(Matcher):
         for size in [int(x) for x in self.working_sizes] if large else [None]:
             t0 = time.perf_counter()
             src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
+            src_poses = poses
+            if poses and src is not source:
+                carry = surface_weights(src.vertices, source)
+                src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
             seconds["decimation"] += time.perf_counter() - t0
             for start in range(int(self.n_starts)):
                 if (src.n_vertices, tgt.n_vertices, start) in done:  # e.g. both meshes within two sizes
                     continue
                 done.add((src.n_vertices, tgt.n_vertices, start))
-                deformed, info = self._register(src, tgt, settings, start)
+                deformed, info = self._register(src, tgt, settings, start, src_poses)
                 t2 = time.perf_counter()
                 if src is not source:
                     deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
@@ -1484,12 +1616,17 @@ class DeformMatcher(Matcher):
         return deformed, info
 
     def _register(
-        self, source: TriangleMesh, target: TriangleMesh, settings: list[tuple[str, int, bool]], start: int = 0
+        self,
+        source: TriangleMesh,
+        target: TriangleMesh,
+        settings: list[tuple[str, int, bool]],
+        start: int = 0,
+        poses: Sequence[tuple[str, FloatArray]] = (),
     ) -> tuple[FloatArray, dict[str, Any]]:
         """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`), one start."""
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results = self._verify(source, target, settings, samples, graph, target_basis)
+        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses)
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
         with one_blas_thread():

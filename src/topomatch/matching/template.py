@@ -25,6 +25,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 
 from topomatch.datasets.base import Shape
 from topomatch.io import write_mesh
@@ -34,7 +36,7 @@ from topomatch.matching.deform import ACCURATE, DeformMatcher, map_from_deformed
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["TemplateMatcher", "compose_through_template"]
+__all__ = ["TemplateMatcher", "compose_through_template", "pose_from_ground_truth"]
 
 
 def compose_through_template(target_to_template: IndexArray, template_to_source: IndexArray) -> IndexArray:
@@ -61,6 +63,52 @@ def compose_through_template(target_to_template: IndexArray, template_to_source:
     return m2s[t2m]
 
 
+def pose_from_ground_truth(template: TriangleMesh, shape: Shape) -> FloatArray:
+    """The template's vertices in a training shape's pose, from the shape's ground truth.
+
+    Each template vertex that the ground truth reaches (``shape.ref``, rows flagged
+    ``unreliable`` left out) goes to the mean position of the shape's vertices that map
+    to it; the displacements of the others are interpolated harmonically (the
+    template's Laplacian, with a vanishing mass term so that a part no ground truth
+    reaches stays where it is). The result keeps the template's connectivity: at a
+    fused place of the shape it is stretched, not fused.
+
+    Parameters
+    ----------
+    template : TriangleMesh
+        The collection's reference shape (``n`` vertices).
+    shape : Shape
+        A shape whose ground truth ``ref`` has the template's ``n`` columns.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+    """
+    n = template.n_vertices
+    if shape.ref is None:
+        raise ValueError(f"pose_from_ground_truth: {shape.name} has no ground truth")
+    ref = sparse.csr_matrix(shape.ref, dtype=np.float64, copy=True)
+    if ref.shape[1] != n:
+        raise ValueError(f"pose_from_ground_truth: the ground truth of {shape.name} has {ref.shape[1]} columns, the template {n} vertices")
+    ref.data[:] = 1.0
+    if shape.unreliable is not None:
+        ref = sparse.diags((~np.asarray(shape.unreliable, dtype=bool)).astype(np.float64)) @ ref
+    count = np.asarray(ref.sum(axis=0)).ravel()
+    hit = count > 0
+    if not hit.any():
+        raise ValueError(f"pose_from_ground_truth: the ground truth of {shape.name} reaches no template vertex")
+    D = np.zeros((n, 3))
+    D[hit] = (ref.T @ shape.mesh.vertices)[hit] / count[hit, None] - template.vertices[hit]
+    free = np.flatnonzero(~hit)
+    if len(free):
+        L, M = template.laplacian()
+        L = sparse.csr_matrix(L)
+        m = np.asarray(M.diagonal())[free]
+        A = (L[free][:, free] + sparse.diags(1e-8 * float(L.diagonal().mean()) / float(m.mean()) * m)).tocsc()
+        D[free] = np.asarray(spsolve(A, -(L[free][:, hit] @ D[hit]))).reshape(-1, 3)
+    return template.vertices + D
+
+
 class TemplateMatcher(Matcher):
     """Register a clean template onto both shapes and compose the two maps.
 
@@ -76,6 +124,14 @@ class TemplateMatcher(Matcher):
         more accurate settings, five sampling starts: a collection of ``n`` shapes
         needs ``n`` registrations for its ``n (n - 1)`` pairs, so their time is
         shared). ``{"n_starts": 1}`` registers as ``deform`` does by default.
+    poses : bool, default True
+        Give the registrations the template in the poses of the training shapes
+        (:func:`pose_from_ground_truth` on the shapes with ground truth that ``fit``
+        receives, e.g. the TOPKIDS training split) as extra hypotheses
+        (``DeformMatcher.pose_keep``, :func:`~topomatch.matching.deform.pose_hypotheses`).
+        A shape's own pose is never used for it (left out by content), so the training
+        pairs' figures are leave-one-out. Only when the template is the fit shapes'
+        reference (no ``model``, or a ``model`` with the reference's mesh).
     copy_starts : int or None, default 1
         Sampling starts of a registration that goes through working copies (the
         template or the shape above the registration's ``working_vertices``), in place
@@ -103,9 +159,12 @@ class TemplateMatcher(Matcher):
         "template needs a template mesh: --param template.model=PATH (a clean shape of the same class, e.g. TOPKIDS' kid00.off)"
     )
 
-    def __init__(self, *, model: str | None = None, deform: Mapping[str, Any] | None = None, copy_starts: int | None = 1) -> None:
+    def __init__(
+        self, *, model: str | None = None, deform: Mapping[str, Any] | None = None, poses: bool = True, copy_starts: int | None = 1
+    ) -> None:
         self.model = model
         self.deform = deform
+        self.poses = poses
         self.copy_starts = copy_starts
 
     def _deformer(self) -> DeformMatcher:
@@ -118,6 +177,8 @@ class TemplateMatcher(Matcher):
         cs = self.copy_starts
         if cs is not None and (isinstance(cs, bool) or not isinstance(cs, (int, np.integer)) or cs < 1):
             raise ValueError(f"template: copy_starts must be an integer >= 1 or None, got {cs!r}")
+        if not isinstance(self.poses, (bool, np.bool_)):
+            raise ValueError(f"template: poses must be True or False, got {self.poses!r}")
         return m
 
     def _deformer_for(self, mesh: TriangleMesh, deformer: DeformMatcher) -> DeformMatcher:
@@ -129,11 +190,14 @@ class TemplateMatcher(Matcher):
     def fit(self, shapes: Sequence[Shape] = (), /) -> TemplateMatcher:
         """Take the template from ``model`` or, failing that, the null shape among ``shapes``.
 
+        With ``poses``, the template's pose in each other shape with ground truth is
+        computed (:func:`pose_from_ground_truth`).
+
         Parameters
         ----------
         shapes : sequence of Shape
             Shapes of the collection; the one whose ground truth is the identity is
-            the template (its ground truth is not used otherwise).
+            the template; the others' ground truth gives the template's poses.
 
         Returns
         -------
@@ -153,6 +217,14 @@ class TemplateMatcher(Matcher):
             self.template_ = ref.mesh
             self.template_name_ = ref.name
         self.training_shapes_ = [self.template_name_]
+        # (name, content hash of the shape, the template's vertices in its pose)
+        self.poses_: list[tuple[str, str, FloatArray]] = []
+        ref = find_reference(shapes) if self.poses else None
+        if ref is not None and ref.mesh.content_hash == self.template_.content_hash:
+            for s in shapes:
+                if s is not ref and s.ref is not None and s.mesh.content_hash != ref.mesh.content_hash:
+                    self.poses_.append((s.name, s.mesh.content_hash, pose_from_ground_truth(self.template_, s)))
+            self.training_shapes_ += [name for name, _, _ in self.poses_]
         self.registrations_: dict[str, tuple[FloatArray, dict[str, Any]]] = {}
         return self
 
@@ -176,7 +248,9 @@ class TemplateMatcher(Matcher):
         hit = self.registrations_.get(key)
         if hit is not None:
             return hit[0], hit[1], "reused"
-        deformed, info = deformer.register(self.template_, mesh)
+        # a shape's own pose (its ground truth) is never a hypothesis for it
+        poses = [(name, P) for name, h, P in self.poses_ if h != mesh.content_hash]
+        deformed, info = deformer.register(self.template_, mesh, poses=poses)
         self.registrations_[key] = (deformed, info)
         return deformed, info, "computed"
 
