@@ -17,6 +17,7 @@ from topomatch.matching.deform import (
     articulated_hypotheses,
     bend_in_two,
     map_from_deformed,
+    pose_hypotheses,
     rigid_hypotheses,
     source_limbs,
     swap_regions,
@@ -492,6 +493,61 @@ def test_articulated_hypotheses_recover_a_figure_bent_in_two(builtin):
     # with the default angles (60, 90, 120) the right one still fits best
     (best,) = articulated_hypotheses(src, tgt, s1, s2, n_keep=1)
     assert best.label == f"bent {label}"
+
+
+def test_pose_hypotheses_find_the_known_pose(builtin):
+    src = builtin["syn00"].mesh
+    basis = src.eigenbasis(2)
+    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
+    tgt0, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=6)  # tgt0 vertex i is source vertex perm[i]
+    R = _rotation(np.array([0.3, 1.0, 0.2]), 2.5)  # beyond the reach of an ICP from the frame as given
+    tgt = TriangleMesh(1.2 * tgt0.vertices @ R.T + np.array([1.0, 2.0, -0.5]), tgt0.faces)
+    s1 = np.arange(0, src.n_vertices, 4)
+    s2 = np.arange(0, tgt.n_vertices, 4)
+    scale = np.sqrt(src.area)
+
+    def error(p2p: np.ndarray) -> float:
+        return float(np.mean(np.linalg.norm(src.vertices[p2p] - src.vertices[perm[s2]], axis=1)) / scale)
+
+    poses = [("a", bends[0][1]), ("b", bends[2][1]), ("rest", src.vertices)]
+    hyps = list(pose_hypotheses(src, tgt, s1, s2, poses, n_keep=2))
+    assert len(hyps) == 2 and all(h.p2p.shape == s2.shape and h.target is None for h in hyps)
+    # the known pose, from one of the principal-axes starts, fits best and is right
+    assert hyps[0].label.startswith("pose b axes ") and error(hyps[0].p2p) < 0.01
+    # as given (no rotation), the ICP cannot undo the turn
+    (given,) = pose_hypotheses(src, tgt, s1, s2, poses[1:2], n_keep=1, frames=("as-given",))
+    assert given.label == "pose b" and error(given.p2p) > 0.05
+    with pytest.raises(ValueError, match="pose 'bad'"):
+        list(pose_hypotheses(src, tgt, s1, s2, [("bad", src.vertices[:-1])]))
+    with pytest.raises(ValueError, match="frames"):
+        list(pose_hypotheses(src, tgt, s1, s2, poses, frames=("sideways",)))
+
+
+def test_deform_verifies_the_pose_hypotheses(builtin):
+    src = builtin["syn00"].mesh
+    basis = src.eigenbasis(2)
+    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
+    tgt, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=7)
+    fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 0, "articulated": 0}
+    m = make_matcher("deform", **fast)
+    poses = [("b", bends[2][1]), ("a", bends[0][1])]
+    hyps, results = m.verify_hypotheses(src, tgt, poses=poses)
+    labels = [h.label for h in hyps]
+    assert sum(label.startswith("pose ") for label in labels) == 3 == m.pose_keep
+    assert labels[int(np.argmin([r.residual for r in results]))].startswith("pose b")
+    deformed, info = m.register(src, tgt, poses=poses)
+    assert info["hypothesis"].startswith("pose b")
+    p2p = map_from_deformed(tgt, deformed, src.faces)
+    assert np.median(np.linalg.norm(src.vertices[p2p] - src.vertices[perm], axis=1)) / np.sqrt(src.area) < 0.01
+    # pose_keep=0 and no poses: no pose hypotheses
+    assert not any(h.label.startswith("pose ") for h in make_matcher("deform", **fast, pose_keep=0).verify_hypotheses(src, tgt, poses=poses)[0])
+    assert not any(h.label.startswith("pose ") for h in m.verify_hypotheses(src, tgt)[0])
+    with pytest.raises(ValueError, match="pose_keep"):
+        make_matcher("deform", pose_keep=-1).register(src, tgt)
+    with pytest.raises(ValueError, match="pose 'x'"):
+        m.register(src, tgt, poses=[("x", np.zeros((3, 3)))])
+    with pytest.raises(ValueError, match="pairs"):
+        m.register(src, tgt, poses=[np.zeros((3, 3))])
 
 
 def _part_root(graph, faces_mesh: TriangleMesh, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

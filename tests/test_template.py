@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import sparse
 
+from topomatch.datasets.base import Shape
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, map_from_deformed
-from topomatch.matching.template import compose_through_template
+from topomatch.matching.template import compose_through_template, pose_from_ground_truth
 from topomatch.mesh import TriangleMesh
 
+from ._fmap_shapes import shuffled
 from ._truth import euclidean_errors
 
 # a cheaper registration than the default, enough for the built-in figure (two starts
@@ -64,9 +67,15 @@ def test_template_registers_through_working_copies_with_copy_starts(builtin):
 
 @pytest.fixture(scope="module")
 def fitted(builtin):
+    # as the benchmark fits it: the null shape and the training split
     m = make_matcher("template", deform=FAST)
-    m.fit([builtin[n] for n in builtin.names])
+    m.fit([builtin[n] for n in ["syn00", *builtin.splits["train"]]])
     return m
+
+
+def _poses_for(matcher, mesh: TriangleMesh) -> list:
+    """The poses the template matcher gives a registration onto ``mesh``: all but the mesh's own."""
+    return [(name, P) for name, h, P in matcher.poses_ if h != mesh.content_hash]
 
 
 def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
@@ -74,8 +83,9 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     src, tgt = builtin["syn00"].mesh, builtin["syn07"].mesh
     c = fitted.match(src, tgt)
     assert c.info["registrations"] == {"target": "computed", "source": "is the template"}
-    direct = make_matcher("deform", **{**ACCURATE, **FAST}).match(src, tgt)
-    np.testing.assert_array_equal(c.p2p_21, direct.p2p_21)
+    assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
+    deformed, _ = make_matcher("deform", **{**ACCURATE, **FAST}).register(src, tgt, poses=_poses_for(fitted, tgt))
+    np.testing.assert_array_equal(c.p2p_21, map_from_deformed(tgt, deformed, src.faces))
     # two sampling starts per registration, the better kept
     assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [2]
     assert len(c.info["runs"]["target"]["runs"]) == 2 and "source" not in c.info["runs"]
@@ -92,8 +102,8 @@ def test_template_composes_the_two_registrations(fitted, builtin):
     # the composition, recomputed from the two registrations
     deform = make_matcher("deform", **{**ACCURATE, **FAST})
     template = builtin["syn00"].mesh
-    d_t, _ = deform.register(template, t.mesh)
-    d_s, _ = deform.register(template, s.mesh)
+    d_t, _ = deform.register(template, t.mesh, poses=_poses_for(fitted, t.mesh))
+    d_s, _ = deform.register(template, s.mesh, poses=_poses_for(fitted, s.mesh))
     t2m = map_from_deformed(t.mesh, d_t, template.faces)
     m2s = map_from_deformed(TriangleMesh(d_s, template.faces), s.mesh.vertices, s.mesh.faces)
     np.testing.assert_array_equal(c.p2p_21, m2s[t2m])
@@ -110,3 +120,56 @@ def test_template_model_file_round_trip(tmp_path, fitted, builtin):
     m = make_matcher("template", model=str(path), deform=FAST).fit([])
     np.testing.assert_allclose(m.template_.vertices, builtin["syn00"].mesh.vertices, rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(m.template_.faces, builtin["syn00"].mesh.faces)
+
+
+def test_pose_from_ground_truth_moves_the_template_into_the_shape_s_pose(builtin):
+    template = builtin["syn00"].mesh
+    n = template.n_vertices
+    # the template itself, moved and renumbered: shape vertex i is template vertex perm[i]
+    moved0, perm = shuffled(template, seed=2)
+    shift = np.array([3.0, -1.0, 0.5])
+    moved = TriangleMesh(moved0.vertices + shift, moved0.faces)
+    truth = sparse.csr_matrix((np.ones(n), (np.arange(n), perm)), shape=(n, n))
+    np.testing.assert_allclose(pose_from_ground_truth(template, Shape("moved", moved, truth)), template.vertices + shift, atol=1e-9)
+    # a third of the ground truth flagged unreliable: those template vertices are
+    # interpolated (a translation is harmonic, so exactly up to the solver)
+    unreliable = np.arange(n) % 3 == 0
+    P = pose_from_ground_truth(template, Shape("moved", moved, truth, unreliable=unreliable))
+    np.testing.assert_allclose(P, template.vertices + shift, atol=1e-6 * np.abs(template.vertices).max())
+    # a rotation: reached vertices exact, the others near (harmonic, not rigid)
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    turned = TriangleMesh(moved0.vertices @ R.T, moved0.faces)
+    P = pose_from_ground_truth(template, Shape("turned", turned, truth, unreliable=unreliable))
+    reached = np.zeros(n, bool)
+    reached[perm[~unreliable]] = True
+    np.testing.assert_allclose(P[reached], (template.vertices @ R.T)[reached], atol=1e-9)
+    err = np.linalg.norm(P[~reached] - (template.vertices @ R.T)[~reached], axis=1) / np.sqrt(template.area)
+    assert err.max() < 0.02
+    # a template vertex reached by several shape vertices: their mean
+    two = sparse.csr_matrix((np.ones(2), ([0, 1], [5, 5])), shape=(2, n))
+    pts = TriangleMesh(np.array([[0.0, 0, 0], [2.0, 0, 0], [0, 1.0, 0]]), np.array([[0, 1, 2]]))
+    tiny = Shape("tiny", pts, sparse.vstack([two, sparse.csr_matrix((1, n))]).tocsr())
+    np.testing.assert_allclose(pose_from_ground_truth(template, tiny)[5], [1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="no ground truth"):
+        pose_from_ground_truth(template, Shape("bare", moved))
+    with pytest.raises(ValueError, match="columns"):
+        pose_from_ground_truth(template, Shape("wrong", moved, truth[:, : n - 1]))
+    with pytest.raises(ValueError, match="reaches no template vertex"):
+        pose_from_ground_truth(template, Shape("moved", moved, truth, unreliable=np.ones(n, bool)))
+
+
+def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
+    train = builtin.splits["train"]
+    m = make_matcher("template", deform={**FAST, "n_starts": 1}).fit([builtin[n] for n in ["syn00", *train]])
+    assert [name for name, _, _ in m.poses_] == train
+    own = builtin[train[0]]
+    m.match(builtin["syn00"].mesh, own.mesh)
+    ((_, info),) = m.registrations_.values()
+    labels = [label for label in info["residuals"] if label.startswith("pose ")]
+    assert len(labels) == 3  # pose_keep: the three best alignments
+    assert not any(label.split()[1] == own.name for label in labels)
+    # without poses: none
+    off = make_matcher("template", deform={**FAST, "n_starts": 1}, poses=False).fit([builtin[n] for n in ["syn00", *train]])
+    assert off.poses_ == [] and off.training_shapes_ == ["syn00"]
+    with pytest.raises(ValueError, match="poses"):
+        make_matcher("template", poses="yes").fit([builtin["syn00"]])
