@@ -523,7 +523,7 @@ def test_pose_hypotheses_find_the_known_pose(builtin):
         list(pose_hypotheses(src, tgt, s1, s2, poses, frames=("sideways",)))
 
 
-def test_deform_verifies_the_pose_hypotheses(builtin):
+def test_deform_verifies_the_pose_hypotheses(builtin, monkeypatch):
     src = builtin["syn00"].mesh
     basis = src.eigenbasis(2)
     bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
@@ -544,6 +544,15 @@ def test_deform_verifies_the_pose_hypotheses(builtin):
     assert not any(h.label.startswith("pose ") for h in m.verify_hypotheses(src, tgt)[0])
     with pytest.raises(ValueError, match="pose_keep"):
         make_matcher("deform", pose_keep=-1).register(src, tgt)
+    # several sampling starts align the poses once (on start 0's samples) and read each start's map off them
+    import topomatch.matching.deform as deform_module
+
+    calls = []
+    real = deform_module.align_poses
+    monkeypatch.setattr(deform_module, "align_poses", lambda *a, **k: calls.append(1) or real(*a, **k))
+    _, info2 = make_matcher("deform", **fast, n_starts=2).register(src, tgt, poses=poses)
+    assert len(calls) == 1 and len(info2["runs"]) == 2
+    assert all(run["hypothesis"].startswith("pose b") for run in info2["runs"])
     with pytest.raises(ValueError, match="pose 'x'"):
         m.register(src, tgt, poses=[("x", np.zeros((3, 3)))])
     with pytest.raises(ValueError, match="pairs"):

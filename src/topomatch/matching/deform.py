@@ -103,6 +103,7 @@ __all__ = [
     "ACCURATE",
     "DeformMatcher",
     "Hypothesis",
+    "align_poses",
     "articulated_hypotheses",
     "bend_in_two",
     "local_wks_features",
@@ -423,10 +424,11 @@ def articulated_hypotheses(
     bent = bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles)
     scale = float(np.sqrt(target.area / source.area))
     posed = [(f"bent {label}", Vb, scale) for label, Vb in bent]
-    yield from _posed_hypotheses(target, source.faces, samples_1, samples_2, posed, ("as-given",), n_keep, icp_iterations)
+    for label, X, NX in _align_posed(target, source.faces, samples_1, samples_2, posed, ("as-given",), n_keep, icp_iterations):
+        yield Hypothesis(label, _nearest_aligned(target.vertices[samples_2], target.vertex_normals[samples_2], X, NX))
 
 
-def _posed_hypotheses(
+def _align_posed(
     target: TriangleMesh,
     faces: IndexArray,
     samples_1: IndexArray,
@@ -435,14 +437,14 @@ def _posed_hypotheses(
     frames: tuple[str, ...],
     n_keep: int,
     icp_iterations: int,
-) -> Iterator[Hypothesis]:
-    """Rigidly align copies of the source in other poses to the target; the ``n_keep`` best fitting as hypotheses.
+) -> list[tuple[str, FloatArray, FloatArray]]:
+    """Rigidly align copies of the source in other poses to the target; the ``n_keep`` best fitting.
 
     Each ``(label, vertices, scale)`` of ``posed`` is scaled, centred on the target and
     rotated by each start of ``frames`` (as in :func:`rigid_hypotheses`), refined by
     rigid ICP on the samples and scored by its mean capped two-sided distance to the
-    target samples; the ``n_keep`` best are yielded, each target sample taking the
-    nearest posed, aligned source vertex with a compatible normal.
+    target samples. Returns the ``n_keep`` best as (label, aligned vertices, their
+    normals), best first.
     """
     s1 = np.asarray(samples_1)
     W = target.vertices[samples_2]
@@ -462,9 +464,9 @@ def _posed_hypotheses(
             residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
             scored.append((residual, name + suffix, Vb, Nb, R, t, scale))
     scored.sort(key=lambda x: x[0])
-    for residual, label, Vb, Nb, R, t, scale in scored[:n_keep]:
+    for residual, label, *_ in scored[:n_keep]:
         logger.debug("%s: rigid residual %.4f", label, residual / np.sqrt(target.area))
-        yield Hypothesis(label, _nearest_aligned(W, Nw, scale * Vb @ R.T + t, Nb @ R.T))
+    return [(label, scale * Vb @ R.T + t, Nb @ R.T) for _, label, Vb, Nb, R, t, scale in scored[:n_keep]]
 
 
 def _frame_rotations(V: FloatArray, target_vertices: FloatArray, frames: tuple[str, ...]) -> list[tuple[str, FloatArray]]:
@@ -524,6 +526,32 @@ def pose_hypotheses(
         Labelled ``"pose <name>"`` (plus the principal-axes signs), a map from the
         target samples to source vertices.
     """
+    aligned = align_poses(source, target, samples_1, samples_2, poses, n_keep=n_keep, frames=frames, icp_iterations=icp_iterations)
+    W, Nw = target.vertices[samples_2], target.vertex_normals[samples_2]
+    for label, X, NX in aligned:
+        yield Hypothesis(label, _nearest_aligned(W, Nw, X, NX))
+
+
+def align_poses(
+    source: TriangleMesh,
+    target: TriangleMesh,
+    samples_1: IndexArray,
+    samples_2: IndexArray,
+    poses: Sequence[tuple[str, FloatArray]],
+    *,
+    n_keep: int = 3,
+    frames: tuple[str, ...] = RIGID_FRAMES,
+    icp_iterations: int = 15,
+) -> list[tuple[str, FloatArray, FloatArray]]:
+    """The alignments behind :func:`pose_hypotheses`: the ``n_keep`` best, as posed source vertices placed on the target.
+
+    Parameters are those of :func:`pose_hypotheses`.
+
+    Returns
+    -------
+    list of (str, ndarray of shape (n_source, 3), ndarray of shape (n_source, 3))
+        Label, the posed source's aligned vertices and their normals; best fitting first.
+    """
     bad = [f for f in frames if f not in RIGID_FRAMES]
     if bad:
         raise ValueError(f"pose frames must be among {RIGID_FRAMES}, got {bad}")
@@ -533,7 +561,7 @@ def pose_hypotheses(
         if not area > 0:
             raise ValueError(f"pose {name!r}: the posed source has zero area")
         posed.append((f"pose {name}", P, float(np.sqrt(target.area / area))))
-    yield from _posed_hypotheses(target, source.faces, samples_1, samples_2, posed, frames, n_keep, icp_iterations)
+    return _align_posed(target, source.faces, samples_1, samples_2, posed, frames, n_keep, icp_iterations)
 
 
 def source_limbs(graph: DeformationGraph, *, min_nodes: int = 3) -> list[IndexArray]:
@@ -1260,6 +1288,19 @@ class DeformMatcher(Matcher):
             if len(tv) >= 4:
                 yield Hypothesis(name, p[tv], tv)
 
+    def _pose_hypotheses(
+        self, source: TriangleMesh, target: TriangleMesh, s1: IndexArray, s2: IndexArray,
+        poses: Sequence[tuple[str, FloatArray]], memo: dict[str, Any],
+    ) -> Iterator[Hypothesis]:
+        """:func:`pose_hypotheses`, the alignments taken from ``memo`` when an earlier start made them."""
+        if not poses or self.pose_keep <= 0:
+            return
+        if "aligned" not in memo:
+            memo["aligned"] = align_poses(source, target, s1, s2, poses, n_keep=self.pose_keep, frames=tuple(self.rigid_frames))
+        W, Nw = target.vertices[s2], target.vertex_normals[s2]
+        for label, X, NX in memo["aligned"]:
+            yield Hypothesis(label, _nearest_aligned(W, Nw, X, NX))
+
     def _score(self, r: RegistrationResult) -> float:
         """The choice's and the limb judge's score: ``residual + distortion_weight x distortion``."""
         return float(r.residual + self.distortion_weight * r.distortion)
@@ -1327,8 +1368,13 @@ class DeformMatcher(Matcher):
         graph: DeformationGraph,
         target_basis: EigenbasisJob | None = None,
         poses: Sequence[tuple[str, FloatArray]] = (),
+        memo: dict[str, Any] | None = None,
     ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
-        """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`."""
+        """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
+
+        ``memo`` keeps the poses' alignments (:func:`align_poses`) for the next starts:
+        the first call aligns them on its samples, later calls only read the map off.
+        """
         s1, s2 = samples
         W = target.vertices
         Nt = target.vertex_normals
@@ -1349,9 +1395,7 @@ class DeformMatcher(Matcher):
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
             if self.articulated > 0
             else iter(()),
-            pose_hypotheses(source, target, s1, s2, poses, n_keep=self.pose_keep, frames=tuple(self.rigid_frames))
-            if poses and self.pose_keep > 0
-            else iter(()),
+            self._pose_hypotheses(source, target, s1, s2, poses, {} if memo is None else memo),
         )
         others = self._matcher_hypotheses(source, target, s2)
 
@@ -1585,7 +1629,7 @@ class DeformMatcher(Matcher):
         for size in [int(x) for x in self.working_sizes] if large else [None]:
             t0 = time.perf_counter()
             src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
-            src_poses = poses
+            src_poses, memo = poses, {}  # the poses are aligned once per size (on start 0's samples)
             if poses and src is not source:
                 carry = surface_weights(src.vertices, source)
                 src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
@@ -1594,7 +1638,7 @@ class DeformMatcher(Matcher):
                 if (src.n_vertices, tgt.n_vertices, start) in done:  # e.g. both meshes within two sizes
                     continue
                 done.add((src.n_vertices, tgt.n_vertices, start))
-                deformed, info = self._register(src, tgt, settings, start, src_poses)
+                deformed, info = self._register(src, tgt, settings, start, src_poses, memo)
                 t2 = time.perf_counter()
                 if src is not source:
                     deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
@@ -1622,11 +1666,12 @@ class DeformMatcher(Matcher):
         settings: list[tuple[str, int, bool]],
         start: int = 0,
         poses: Sequence[tuple[str, FloatArray]] = (),
+        memo: dict[str, Any] | None = None,
     ) -> tuple[FloatArray, dict[str, Any]]:
         """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`), one start."""
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses)
+        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo)
         order = np.argsort([r.residual for r in results], kind="stable")
         t1 = time.perf_counter()
         with one_blas_thread():
