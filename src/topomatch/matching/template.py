@@ -12,9 +12,15 @@ once per template, so a collection of ``n`` shapes needs ``n`` registrations for
 ``n (n - 1)`` pairs (kept in memory by the matcher object; ``topomatch bench`` runs
 this method's pairs in one process for that reason, whatever ``--jobs`` is).
 
-The template is a prior, not ground truth: only its mesh is used. ``fit`` takes the
-collection's null shape when no ``model`` file is given; reports should say that
-the row uses a template.
+The template is a prior: ``fit`` takes the collection's null shape when no ``model``
+file is given; reports should say that the row uses a template. With ``poses`` (the
+default) ``fit`` also learns from the training shapes it receives: each one's ground
+truth puts the template in that shape's pose (:func:`pose_from_ground_truth`), and
+these poses, rigidly aligned to a shape, join the registration's hypotheses
+(``DeformMatcher.register(..., poses=...)``). This is training, as for ``rf``: the
+training split's ground truth is used, never a test shape's, and a shape's own pose is
+left out when it is registered, so figures on training shapes are leave-one-out. A
+``model`` file holds only the mesh: matching through it has no poses.
 """
 
 from __future__ import annotations
@@ -117,7 +123,8 @@ class TemplateMatcher(Matcher):
     model : str, optional
         Path of the template mesh (OFF, PLY or OBJ): a clean shape of the same class.
         When not given, ``fit`` takes the null shape of the shapes it receives (for
-        TOPKIDS ``kid00``; only its mesh is used).
+        TOPKIDS ``kid00``; only its mesh is used, and with ``poses`` the other shapes' ground
+        truth to it).
     deform : dict, optional
         Hyperparameters of the :class:`DeformMatcher` that registers the template, on
         top of :data:`~topomatch.matching.deform.ACCURATE` (the registration's slower,
