@@ -18,7 +18,10 @@
    fooled by the target's shortcuts, which is where the functional maps fail. To reach
    poses far from the source's, the source is also bent in two (at the median of its
    Fiedler vector, one half turned by 60, 90 or 120 degrees either way) and the three
-   best-fitting bent copies are aligned the same way (*articulated* hypotheses). Maps of other axiomatic
+   best-fitting bent copies are aligned the same way (*articulated* hypotheses). Where the
+   source is known in other poses (``register(..., poses=...)``: ``template`` gives the
+   template in its training shapes' poses), the three best rigid alignments of the
+   posed copies are verified too (*pose* hypotheses). Maps of other axiomatic
    matchers (e.g. ``ge``, ``em``) can be added as hypotheses.
 3. **Assembly.** Under heavy noise no single registration is right everywhere, so
    regions where another verified registration differs from the winner are swapped in
