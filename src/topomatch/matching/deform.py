@@ -1121,6 +1121,11 @@ class DeformMatcher(Matcher):
         the training shapes' poses of ``kid00`` (left out when registering the pose's own
         shape) three took the training pairs kid01-kid15 from 2.27 to 2.02 (one start;
         attempt #86, ``docs/flagship.md``). ``0``: poses are ignored.
+    pose_runs : {"every", "extra"}
+        Where the pose hypotheses go: ``"every"``, into every registration (each
+        sampling start and working size); ``"extra"``, into one more registration per
+        working size (from sampling start 0) beside the ``n_starts`` without them, the
+        best full-mesh score of all kept.
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
@@ -1170,6 +1175,7 @@ class DeformMatcher(Matcher):
         working_sizes: tuple[int, ...] = WORKING_SIZES,
         n_starts: int = 1,
         pose_keep: int = 3,
+        pose_runs: str = "every",
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
     ) -> None:
@@ -1205,6 +1211,7 @@ class DeformMatcher(Matcher):
         self.working_sizes = working_sizes
         self.n_starts = n_starts
         self.pose_keep = pose_keep
+        self.pose_runs = pose_runs
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
 
@@ -1261,6 +1268,8 @@ class DeformMatcher(Matcher):
             raise ValueError(f"continue_icp_iterations must be an integer >= 0, got {self.continue_icp_iterations!r}")
         if isinstance(self.pose_keep, (bool, np.bool_)) or not isinstance(self.pose_keep, (int, np.integer)) or self.pose_keep < 0:
             raise ValueError(f"pose_keep must be an integer >= 0, got {self.pose_keep!r}")
+        if self.pose_runs not in ("every", "extra"):
+            raise ValueError(f"pose_runs must be 'every' or 'extra', got {self.pose_runs!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices", "n_starts"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
@@ -1618,7 +1627,8 @@ class DeformMatcher(Matcher):
         settings = self._check()
         poses = _checked_poses(source, poses)
         large = self.through_copies(source, target)
-        if not large and self.n_starts == 1:
+        extra = bool(poses) and self.pose_keep > 0 and self.pose_runs == "extra"
+        if not large and self.n_starts == 1 and not extra:
             return self._register(source, target, settings, poses=poses)
         scale = float(np.sqrt(source.area))
         samples = (
@@ -1627,7 +1637,7 @@ class DeformMatcher(Matcher):
         )
         tree = PointTree(target.vertices)
         runs: list[tuple[float, FloatArray, dict[str, Any]]] = []
-        done: set[tuple[int, int, int]] = set()
+        done: set[tuple[int, int, int, bool]] = set()
         seconds = {"decimation": 0.0, "hypotheses_and_verification": 0.0, "refinement": 0.0}
         for size in [int(x) for x in self.working_sizes] if large else [None]:
             t0 = time.perf_counter()
@@ -1637,18 +1647,20 @@ class DeformMatcher(Matcher):
                 carry = surface_weights(src.vertices, source)
                 src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
             seconds["decimation"] += time.perf_counter() - t0
-            for start in range(int(self.n_starts)):
-                if (src.n_vertices, tgt.n_vertices, start) in done:  # e.g. both meshes within two sizes
+            # (start, with the poses): "extra" registers the poses apart, from start 0
+            plan = [(k, not extra) for k in range(int(self.n_starts))] + ([(0, True)] if extra else [])
+            for start, with_poses in plan:
+                if (src.n_vertices, tgt.n_vertices, start, with_poses) in done:  # e.g. both meshes within two sizes
                     continue
-                done.add((src.n_vertices, tgt.n_vertices, start))
-                deformed, info = self._register(src, tgt, settings, start, src_poses, memo)
+                done.add((src.n_vertices, tgt.n_vertices, start, with_poses))
+                deformed, info = self._register(src, tgt, settings, start, src_poses if with_poses else (), memo)
                 t2 = time.perf_counter()
                 if src is not source:
                     deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
                 # judged on the full meshes and one set of samples: the runs' own residuals
                 # (their copies, their samples) are not comparable
                 residual = fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
-                info["run"] = {"working_size": size, "start": start, "vertices": (src.n_vertices, tgt.n_vertices), "full_residual": residual,
+                info["run"] = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses), "vertices": (src.n_vertices, tgt.n_vertices), "full_residual": residual,
                                "score": residual + self.distortion_weight * float(info["distortion"]), "hypothesis": info["hypothesis"]}
                 if size is not None:
                     info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
