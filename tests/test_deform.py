@@ -553,6 +553,13 @@ def test_deform_verifies_the_pose_hypotheses(builtin, monkeypatch):
     _, info2 = make_matcher("deform", **fast, n_starts=2).register(src, tgt, poses=poses)
     assert len(calls) == 1 and len(info2["runs"]) == 2
     assert all(run["hypothesis"].startswith("pose b") for run in info2["runs"])
+    # "extra": the poses in one more registration (from start 0) beside the n_starts without them
+    _, info3 = make_matcher("deform", **fast, pose_runs="extra").register(src, tgt, poses=poses)
+    assert [(run["start"], run["poses"]) for run in info3["runs"]] == [(0, False), (0, True)]
+    assert info3["runs"][1]["hypothesis"].startswith("pose b") and not info3["runs"][0]["hypothesis"].startswith("pose")
+    assert info3["run"] == int(np.argmin([run["score"] for run in info3["runs"]]))  # the best full-mesh score kept
+    with pytest.raises(ValueError, match="pose_runs"):
+        make_matcher("deform", pose_runs="some").register(src, tgt)
     with pytest.raises(ValueError, match="pose 'x'"):
         m.register(src, tgt, poses=[("x", np.zeros((3, 3)))])
     with pytest.raises(ValueError, match="pairs"):

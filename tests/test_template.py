@@ -171,5 +171,9 @@ def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
     # without poses: none
     off = make_matcher("template", deform={**FAST, "n_starts": 1}, poses=False).fit([builtin[n] for n in ["syn00", *train]])
     assert off.poses_ == [] and off.training_shapes_ == ["syn00"]
+    # with training poses the registration has one start (the poses do what ACCURATE's five do), without them ACCURATE
+    assert make_matcher("template").fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == 1
+    assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == ACCURATE["n_starts"]
+    assert make_matcher("template").fit([builtin["syn00"]])._deformer().n_starts == ACCURATE["n_starts"]  # no training shapes
     with pytest.raises(ValueError, match="poses"):
         make_matcher("template", poses="yes").fit([builtin["syn00"]])

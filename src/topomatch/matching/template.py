@@ -126,11 +126,15 @@ class TemplateMatcher(Matcher):
         TOPKIDS ``kid00``; only its mesh is used, and with ``poses`` the other shapes' ground
         truth to it).
     deform : dict, optional
-        Hyperparameters of the :class:`DeformMatcher` that registers the template, on
-        top of :data:`~topomatch.matching.deform.ACCURATE` (the registration's slower,
-        more accurate settings, five sampling starts: a collection of ``n`` shapes
-        needs ``n`` registrations for its ``n (n - 1)`` pairs, so their time is
-        shared). ``{"n_starts": 1}`` registers as ``deform`` does by default.
+        Hyperparameters of the :class:`DeformMatcher` that registers the template. With
+        training poses (see ``poses``) on top of ``deform``'s defaults: one sampling
+        start, the poses among the hypotheses. Without them on top of
+        :data:`~topomatch.matching.deform.ACCURATE` (five sampling starts, the best fit
+        kept). On the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra
+        x100) one start with the poses scored 2.37, five starts without them 2.36, five
+        starts with them 2.49 (attempt #86, ``docs/flagship.md``): the poses do what
+        the five starts do, at a fifth of the time. ``{"n_starts": 5}`` restores the
+        five starts.
     poses : bool, default True
         Give the registrations the template in the poses of the training shapes
         (:func:`pose_from_ground_truth` on the shapes with ground truth that ``fit``
@@ -175,7 +179,9 @@ class TemplateMatcher(Matcher):
         self.copy_starts = copy_starts
 
     def _deformer(self) -> DeformMatcher:
-        params = {**ACCURATE, **(self.deform or {})}
+        # with training poses one start (they give the five starts' accuracy); without, ACCURATE
+        base = {} if getattr(self, "poses_", None) else dict(ACCURATE)
+        params = {**base, **(self.deform or {})}
         try:
             m = DeformMatcher(**params)
         except TypeError as err:
