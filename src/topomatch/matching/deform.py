@@ -1119,13 +1119,16 @@ class DeformMatcher(Matcher):
         how many of their best rigid alignments to the target are verified as
         hypotheses (:func:`pose_hypotheses`, started from the ``rigid_frames``). With
         the training shapes' poses of ``kid00`` (left out when registering the pose's own
-        shape) three took the training pairs kid01-kid15 from 2.27 to 2.02 (one start;
-        attempt #86, ``docs/flagship.md``). ``0``: poses are ignored.
+        shape) three took the training pairs kid00 -> kid01..kid15 from 2.70 to 2.37
+        (one start, Dijkstra x100; attempt #86, ``docs/flagship.md``). ``0``: poses are
+        ignored.
     pose_runs : {"every", "extra"}
         Where the pose hypotheses go: ``"every"``, into every registration (each
         sampling start and working size); ``"extra"``, into one more registration per
         working size (from sampling start 0) beside the ``n_starts`` without them, the
-        best full-mesh score of all kept.
+        best full-mesh score of all kept. Training pairs (attempt #86): one start 2.37
+        either way ("extra" at twice the time), five starts 2.49 ("every") and 2.40
+        ("extra"), against 2.36 for five starts without poses.
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
