@@ -9,7 +9,11 @@ from scipy import sparse
 from topomatch.datasets.base import Shape
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, map_from_deformed
-from topomatch.matching.template import compose_through_template, pose_from_ground_truth
+from topomatch.matching.template import (
+    compose_through_template,
+    mirrored_pose,
+    pose_from_ground_truth,
+)
 from topomatch.mesh import TriangleMesh
 
 from ._fmap_shapes import shuffled
@@ -177,3 +181,29 @@ def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().n_starts == ACCURATE["n_starts"]  # no training shapes
     with pytest.raises(ValueError, match="poses"):
         make_matcher("template", poses="yes").fit([builtin["syn00"]])
+
+
+def test_mirrored_pose_exchanges_left_and_right(builtin):
+    ref = builtin["syn00"]
+    V, sym = ref.mesh.vertices, ref.sym
+    # the rest pose is its own mirror image (syn00 is symmetric about x = 0, to its vertex placement)
+    M = mirrored_pose(V, sym)
+    assert np.abs(M - V).max() < 0.02 * np.abs(V).max()
+    # a pose with one side moved: the mirror image moves the other side
+    P = V + np.where(V[:, :1] > 0.2, [0.0, 0.0, 0.3], 0.0)
+    Q = mirrored_pose(P, sym)
+    moved = np.linalg.norm(Q - M, axis=1) > 0.1
+    assert moved.any() and (V[moved, 0] < -0.15).all()
+    # outward normals stay outward: the signed volume keeps its sign
+    F = ref.mesh.faces
+    def volume(X):
+        return np.einsum("ij,ij->i", X[F[:, 0]], np.cross(X[F[:, 1]], X[F[:, 2]])).sum() / 6
+
+    assert np.sign(volume(Q)) == np.sign(volume(V)) != 0
+    with pytest.raises(ValueError, match="symmetry map"):
+        mirrored_pose(V, sym[:-1])
+    # the template gives both, and leaves both out for the shape itself
+    train = builtin.splits["train"]
+    m = make_matcher("template", mirror_poses=True).fit([builtin[n] for n in ["syn00", *train]])
+    assert [name for name, _, _ in m.poses_] == [x for n in train for x in (n, n + " mirrored")]
+    assert m.training_shapes_ == ["syn00", *train]
