@@ -10,6 +10,7 @@ from topomatch.datasets.base import Shape
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, map_from_deformed
 from topomatch.matching.template import (
+    POSED_STARTS,
     compose_through_template,
     mirrored_pose,
     pose_from_ground_truth,
@@ -175,8 +176,9 @@ def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
     # without poses: none
     off = make_matcher("template", deform={**FAST, "n_starts": 1}, poses=False).fit([builtin[n] for n in ["syn00", *train]])
     assert off.poses_ == [] and off.training_shapes_ == ["syn00"]
-    # with training poses the registration has one start (the poses do what ACCURATE's five do), without them ACCURATE
-    assert make_matcher("template").fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == 1
+    # with training poses the registration has POSED_STARTS starts, without them ACCURATE's five
+    assert make_matcher("template").fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == POSED_STARTS == 2
+    assert make_matcher("template", deform={"n_starts": 1}).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == 1
     assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == ACCURATE["n_starts"]
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().n_starts == ACCURATE["n_starts"]  # no training shapes
     with pytest.raises(ValueError, match="poses"):

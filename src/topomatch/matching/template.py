@@ -42,7 +42,12 @@ from topomatch.matching.deform import ACCURATE, DeformMatcher, map_from_deformed
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+__all__ = ["POSED_STARTS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+
+#: Sampling starts of a registration that has the training poses among its hypotheses.
+#: Chosen on the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra x100):
+#: one start 2.37, two 2.30, five 2.49 (attempt #86 in ``docs/flagship.md``).
+POSED_STARTS = 2
 
 
 def compose_through_template(target_to_template: IndexArray, template_to_source: IndexArray) -> IndexArray:
@@ -154,14 +159,14 @@ class TemplateMatcher(Matcher):
         truth to it).
     deform : dict, optional
         Hyperparameters of the :class:`DeformMatcher` that registers the template. With
-        training poses (see ``poses``) on top of ``deform``'s defaults: one sampling
-        start, the poses among the hypotheses. Without them on top of
-        :data:`~topomatch.matching.deform.ACCURATE` (five sampling starts, the best fit
-        kept). On the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra
-        x100) one start with the poses scored 2.37, five starts without them 2.36, five
-        starts with them 2.49 (attempt #86, ``docs/flagship.md``): the poses do what
-        the five starts do, at a fifth of the time. ``{"n_starts": 5}`` restores the
-        five starts.
+        training poses (see ``poses``) on top of ``deform``'s defaults with
+        :data:`POSED_STARTS` (two) sampling starts, the poses among the hypotheses of
+        each. Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
+        sampling starts, the best fit kept). On the training pairs kid00 ->
+        kid01..kid15 (leave-one-out, Dijkstra x100) two starts with the poses scored
+        2.30, one start with them 2.37, five starts without them 2.36, five starts with
+        them 2.49 (attempt #86, ``docs/flagship.md``). ``{"n_starts": 1}`` halves the
+        time; ``{"n_starts": 5}`` gives five starts.
     poses : bool, default True
         Give the registrations the template in the poses of the training shapes
         (:func:`pose_from_ground_truth` on the shapes with ground truth that ``fit``
@@ -216,8 +221,8 @@ class TemplateMatcher(Matcher):
         self.copy_starts = copy_starts
 
     def _deformer(self) -> DeformMatcher:
-        # with training poses one start (they give the five starts' accuracy); without, ACCURATE
-        base = {} if getattr(self, "poses_", None) else dict(ACCURATE)
+        # with training poses two starts (the best on the training pairs, #86); without, ACCURATE
+        base = {"n_starts": POSED_STARTS} if getattr(self, "poses_", None) else dict(ACCURATE)
         params = {**base, **(self.deform or {})}
         try:
             m = DeformMatcher(**params)
