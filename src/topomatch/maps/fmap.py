@@ -133,11 +133,16 @@ def orientation_operators(
     grad_d = (G @ d).reshape(nf, 3, -1) / scale  # (n_faces, 3, d)
     rot = np.cross(normals[:, :, None], grad_d, axis=1)  # n x grad d, (n_faces, 3, d)
     face_phi = basis.evecs[f].mean(axis=1) * areas[:, None]  # (n_faces, k)
-    out = np.empty((d.shape[1], basis.k, basis.k))
-    for j in range(d.shape[1]):
-        deriv = np.einsum("tc,tck->tk", rot[:, :, j], grad_phi)  # (n_faces, k)
-        out[j] = face_phi.T @ deriv
-    return out
+    nd, k = d.shape[1], basis.k
+    # all descriptors at once, in chunks of faces (about 32 MB of derivatives each):
+    # deriv[t, j, :] = (n x grad d_j)_t . grad phi_t, then one product with face_phi
+    out = np.zeros((k, nd * k))
+    chunk = max(1, (1 << 22) // max(1, nd * k))
+    for s in range(0, nf, chunk):
+        e = min(nf, s + chunk)
+        deriv = np.matmul(rot[s:e].transpose(0, 2, 1), grad_phi[s:e])  # (chunk, d, k)
+        out += face_phi[s:e].T @ deriv.reshape(e - s, nd * k)
+    return np.ascontiguousarray(out.reshape(k, nd, k).transpose(1, 0, 2))
 
 
 @dataclass(frozen=True)
