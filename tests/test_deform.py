@@ -279,12 +279,19 @@ def test_deform_keeps_the_working_size_with_the_best_full_resolution_score(pair)
     np.testing.assert_array_equal(alone.p2p_21, c.p2p_21)
 
 
-def test_deform_keeps_the_sampling_start_with_the_best_score(pair):
+def test_deform_keeps_the_sampling_start_with_the_best_score(pair, monkeypatch):
     src, tgt, _ = pair
     kw = {"hypotheses": (("hks", 30, False),), "n_samples": 800, "coarse_nodes": 80, "fine_nodes": 200}
     one = make_matcher("deform", **kw).match(src, tgt)
     assert "runs" not in one.info  # one start: registered as before
+    import topomatch.matching.deform as deform_module
+
+    spectral_calls = []
+    real = deform_module._spectral_data
+    monkeypatch.setattr(deform_module, "_spectral_data", lambda mesh, *a: spectral_calls.append(mesh.content_hash) or real(mesh, *a))
     c = make_matcher("deform", n_starts=3, **kw).match(src, tgt)
+    # the shapes' spectral data (basis, descriptors, operators) are computed once, not per start
+    assert sorted(spectral_calls) == sorted([src.content_hash, tgt.content_hash])
     runs = c.info["runs"]
     assert [r["start"] for r in runs] == [0, 1, 2] and all(r["working_size"] is None for r in runs)
     scores = [r["score"] for r in runs]

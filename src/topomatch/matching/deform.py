@@ -178,6 +178,7 @@ def spectral_hypotheses(
     n_descriptors: int = 100,
     n_operator_descriptors: int = 20,
     weights: FmapWeights | None = None,
+    cache: dict[Any, Any] | None = None,
 ) -> Iterator[Hypothesis]:
     """Functional-map hypotheses upsampled by ZoomOut on samples, generated lazily.
 
@@ -198,6 +199,10 @@ def spectral_hypotheses(
     n_descriptors, n_operator_descriptors : int
     weights : FmapWeights, optional
         Default: ``FmapWeights(orientation=1.0)``.
+    cache : dict, optional
+        Keeps each shape's eigenbasis, descriptors and operators (they do not depend on
+        the samples) for later calls on the same pair with other samples, e.g. the
+        sampling starts of :class:`DeformMatcher` (``n_starts``).
 
     Yields
     ------
@@ -209,8 +214,14 @@ def spectral_hypotheses(
     k_ops = max(k for _, k, _ in settings)
     if k_ops > k_zoomout:
         raise ValueError(f"initial sizes must not exceed k_zoomout={k_zoomout}, got {k_ops}")
-    s1 = _spectral_data(source, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors)
-    s2 = _spectral_data(target, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors)
+    key = ("spectral", kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors, source.content_hash, target.content_hash)
+    if cache is not None and key in cache:
+        s1, s2 = cache[key]
+    else:
+        s1 = _spectral_data(source, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors)
+        s2 = _spectral_data(target, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors)
+        if cache is not None:
+            cache[key] = (s1, s2)
     e1 = s1.basis_evecs[samples_1]
     e2 = s2.basis_evecs[samples_2]
     m2 = s2.mass[samples_2] * (s2.mass.sum() / s2.mass[samples_2].sum())
@@ -1388,8 +1399,9 @@ class DeformMatcher(Matcher):
     ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
         """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
 
-        ``memo`` keeps the poses' alignments (:func:`align_poses`) for the next starts:
-        the first call aligns them on its samples, later calls only read the map off.
+        ``memo`` keeps the poses' alignments (:func:`align_poses`) and the shapes'
+        spectral data (:func:`spectral_hypotheses`' ``cache``) for the next starts: the
+        first call aligns the poses on its samples, later calls only read the map off.
         """
         s1, s2 = samples
         W = target.vertices
@@ -1405,7 +1417,7 @@ class DeformMatcher(Matcher):
             # spectral hypotheses compute anyway (no separate two-eigenpair solve)
             source.eigenbasis(self.k_zoomout)
         # generators: nothing is computed before a hypothesis is asked for
-        spectral = spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout)
+        spectral = spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
         extrinsic = chain(
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
