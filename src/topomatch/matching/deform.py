@@ -251,7 +251,7 @@ geodesic error x100, Dijkstra, pooled) 2.70 -> 2.36 (kid14 7.24 -> 5.04, kid15 1
 12.47), on the built-in topkids25-style pairs 1.70 -> 1.37; the ``template`` matcher
 registers with them when it has no training poses, since each of its registrations
 serves every pair of the shape (``docs/flagship.md``, attempt #85; with training poses
-it registers with one start, which does as well on the training pairs, attempt #86). Until session 26 these were
+it registers with two starts, which do better on the training pairs, attempt #86). Until session 26 these were
 ``{"fine_icp_iterations": 80, "limb_judge": "fine", "limb_judge_iterations": 25}``
 (training pairs 2.63; with three starts 2.57 against 2.53 for the default settings
 with three starts)."""
