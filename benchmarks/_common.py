@@ -5,11 +5,23 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
+import time
 
 from topomatch.datasets.base import ShapeCollection
 from topomatch.datasets.topkids import load_topkids
 from topomatch.evaluation.protocols import Protocol, get_protocol
 from topomatch.mesh import TriangleMesh
+
+
+def median_seconds(fn, repeat: int, *args):
+    """Call ``fn(*args)`` ``repeat`` times; the median wall time in seconds and the last result."""
+    times, res = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        res = fn(*args)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), res
 
 
 def emit_row(row: dict, path: str | None) -> None:

@@ -16,38 +16,21 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 import numpy as np
+from _common import median_seconds
 
-from topomatch.maps.fmap import orientation_operators
+from topomatch.maps.fmap import _orientation_factors, orientation_operators
 from topomatch.matching.fmap import spectral_descriptors
-from topomatch.mesh.geometry import face_normals
-from topomatch.mesh.laplacian import gradient_operator
 
 
 def per_descriptor(vertices: np.ndarray, faces: np.ndarray, basis, descriptors: np.ndarray) -> np.ndarray:
-    """The former formulation: one einsum and one product per descriptor (the baseline)."""
-    G, areas = gradient_operator(vertices, faces)
-    scale = 1.0 / np.sqrt(areas.sum())
-    nf = len(faces)
-    grad_phi = (G @ basis.evecs).reshape(nf, 3, -1) / scale
-    grad_d = (G @ descriptors).reshape(nf, 3, -1) / scale
-    rot = np.cross(face_normals(vertices, faces)[:, :, None], grad_d, axis=1)
-    face_phi = basis.evecs[faces].mean(axis=1) * areas[:, None]
+    """The former formulation: the same per-face factors, one einsum and one product per descriptor (the baseline)."""
+    rot, grad_phi, face_phi = _orientation_factors(vertices, faces, basis, descriptors)
     out = np.empty((descriptors.shape[1], basis.k, basis.k))
     for j in range(descriptors.shape[1]):
         out[j] = face_phi.T @ np.einsum("tc,tck->tk", rot[:, :, j], grad_phi)
     return out
-
-
-def _median(fn, repeat: int, *args) -> tuple[float, np.ndarray]:
-    times, res = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        res = fn(*args)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), res
 
 
 def main() -> None:
@@ -75,8 +58,8 @@ def main() -> None:
         d = spectral_descriptors(mesh, "hks", 100, 100)
         d = d[:, np.unique(np.linspace(0, d.shape[1] - 1, args.descriptors).round().astype(int))]
         inputs = (mesh.vertices, mesh.faces, basis, d)
-        t_old, o_old = _median(per_descriptor, args.repeat, *inputs)
-        t_new, o_new = _median(orientation_operators, args.repeat, *inputs)
+        t_old, o_old = median_seconds(per_descriptor, args.repeat, *inputs)
+        t_new, o_new = median_seconds(orientation_operators, args.repeat, *inputs)
         diff = float(np.abs(o_new - o_old).max() / np.abs(o_old).max())
         print(f"{name:>8} {len(mesh.faces):>7} {t_old:>17.3f} {t_new:>10.3f} {t_old / t_new:>6.2f} {diff:>13.1e}")
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 import numpy as np
+from _common import median_seconds
 from scipy.spatial import cKDTree
 
 from topomatch.maps.knn import nearest_neighbors
@@ -45,15 +45,6 @@ def _exact(ref: np.ndarray, qry: np.ndarray) -> np.ndarray | None:
     for s in range(0, len(qry), 1000):
         out[s : s + 1000] = np.argmin(r2[None] - 2.0 * qry[s : s + 1000] @ ref.T, axis=1)
     return out
-
-
-def _median_seconds(fn, repeat: int) -> tuple[float, np.ndarray]:
-    times, res = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        res = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), res
 
 
 def main() -> None:
@@ -87,7 +78,7 @@ def main() -> None:
         exact = _exact(ref, qry)
         cells, base = [], None
         for name, fn in backends.items():
-            sec, res = _median_seconds(lambda fn=fn, ref=ref, qry=qry: fn(ref, qry), args.repeat)
+            sec, res = median_seconds(lambda fn=fn, ref=ref, qry=qry: fn(ref, qry), args.repeat)
             base = sec if base is None else base
             agree = "" if exact is None else f", {100 * np.mean(res == exact):.3f}% exact"
             cells.append(f"{name} {sec:.3f} s (x{sec / base:.2f}{agree})")

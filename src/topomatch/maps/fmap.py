@@ -114,6 +114,28 @@ def orientation_operators(
     -------
     ndarray, shape (d, k, k)
     """
+    rot, grad_phi, face_phi = _orientation_factors(vertices, faces, basis, descriptors)
+    nf, nd, k = len(rot), rot.shape[2], basis.k
+    # all descriptors at once, in chunks of faces (about 32 MB of derivatives each):
+    # deriv[t, j, :] = (n x grad d_j)_t . grad phi_t, then one product with face_phi
+    out = np.zeros((k, nd * k))
+    chunk = max(1, (1 << 22) // max(1, nd * k))
+    for s in range(0, nf, chunk):
+        e = min(nf, s + chunk)
+        deriv = np.matmul(rot[s:e].transpose(0, 2, 1), grad_phi[s:e])  # (chunk, d, k)
+        out += face_phi[s:e].T @ deriv.reshape(e - s, nd * k)
+    return np.ascontiguousarray(out.reshape(k, nd, k).transpose(1, 0, 2))
+
+
+def _orientation_factors(
+    vertices: FloatArray, faces: IndexArray, basis: Eigenbasis, descriptors: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per-face factors of :func:`orientation_operators` on the shape scaled to unit area.
+
+    Returns ``n x grad d`` of shape (n_faces, 3, d), ``grad phi`` of shape
+    (n_faces, 3, k) and ``area_t mean_{v in t} phi(v)`` of shape (n_faces, k):
+    ``O[j] = face_phi.T @ sum_c rot[:, c, j, None] * grad_phi[:, c, :]``.
+    """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     n = basis.evecs.shape[0]
@@ -133,16 +155,7 @@ def orientation_operators(
     grad_d = (G @ d).reshape(nf, 3, -1) / scale  # (n_faces, 3, d)
     rot = np.cross(normals[:, :, None], grad_d, axis=1)  # n x grad d, (n_faces, 3, d)
     face_phi = basis.evecs[f].mean(axis=1) * areas[:, None]  # (n_faces, k)
-    nd, k = d.shape[1], basis.k
-    # all descriptors at once, in chunks of faces (about 32 MB of derivatives each):
-    # deriv[t, j, :] = (n x grad d_j)_t . grad phi_t, then one product with face_phi
-    out = np.zeros((k, nd * k))
-    chunk = max(1, (1 << 22) // max(1, nd * k))
-    for s in range(0, nf, chunk):
-        e = min(nf, s + chunk)
-        deriv = np.matmul(rot[s:e].transpose(0, 2, 1), grad_phi[s:e])  # (chunk, d, k)
-        out += face_phi[s:e].T @ deriv.reshape(e - s, nd * k)
-    return np.ascontiguousarray(out.reshape(k, nd, k).transpose(1, 0, 2))
+    return rot, grad_phi, face_phi
 
 
 @dataclass(frozen=True)
