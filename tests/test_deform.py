@@ -758,3 +758,36 @@ def test_deform_feature_stage_parameters(pair):
         make_matcher("deform", feature_icp_iterations=-1).match(src, tgt)
     with pytest.raises(ValueError, match="feature_weight"):
         make_matcher("deform", feature_weight=float("nan")).match(src, tgt)
+
+
+def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
+    src = builtin["syn00"].mesh
+    basis = src.eigenbasis(2)
+    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
+    tgt, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=7)
+    fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 0, "articulated": 0}
+    poses = [("a", bends[0][1]), ("b", bends[2][1])]
+    scale = np.sqrt(src.area)
+    base_deformed, base = make_matcher("deform", **fast).register(src, tgt, poses=poses)
+    deformed, info = make_matcher("deform", **fast, pose_sources=1).register(src, tgt, poses=poses)
+    runs = info["runs"]
+    assert [(r["start"], r["poses"], r["source_pose"]) for r in runs] == [(0, True, None), (0, False, "b")]
+    # the first run is the registration without pose_sources (the ranking leaves its pose hypotheses alone)
+    samples = tuple(farthest_point_sampling(min(600, m.n_vertices), points=m.vertices, first=0) for m in (src, tgt))
+    base_score = fit_residual(base_deformed, src.faces, tgt.vertices, tgt.vertex_normals, cKDTree(tgt.vertices), scale=scale, samples=samples)
+    assert runs[0]["hypothesis"] == base["hypothesis"]
+    assert runs[0]["score"] == pytest.approx(base_score + 0.025 * base["distortion"])
+    # the posed source is the target's own shape: it fits without distortion, is kept, and maps right
+    assert runs[1]["score"] < runs[0]["score"] and info["run"] == 1 and info["hypothesis"].startswith("posed b: ")
+    p2p = map_from_deformed(tgt, deformed, src.faces)
+    assert np.median(np.linalg.norm(src.vertices[p2p] - src.vertices[perm], axis=1)) / scale < 0.01
+    # through a working copy the posed run's displacements are carried back onto the pose at full resolution
+    copied, info_c = make_matcher("deform", **fast, pose_sources=1, working_vertices=1000, working_sizes=(1000,)).register(src, tgt, poses=poses)
+    assert [r["source_pose"] for r in info_c["runs"]] == [None, "b"] and info_c["run"] == 1
+    assert copied.shape == src.vertices.shape
+    assert np.median(cKDTree(tgt.vertices).query(copied)[0]) < 0.01 * scale
+    # without poses there is nothing to register in a pose: one plain registration
+    assert "runs" not in make_matcher("deform", **fast, pose_sources=1).register(src, tgt)[1]
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="pose_sources"):
+            make_matcher("deform", pose_sources=bad).register(src, tgt)

@@ -10,6 +10,7 @@ from topomatch.datasets.base import Shape
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, map_from_deformed
 from topomatch.matching.template import (
+    POSE_SOURCES,
     POSED_STARTS,
     compose_through_template,
     mirrored_pose,
@@ -89,11 +90,13 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     c = fitted.match(src, tgt)
     assert c.info["registrations"] == {"target": "computed", "source": "is the template"}
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
-    deformed, _ = make_matcher("deform", **{**ACCURATE, **FAST}).register(src, tgt, poses=_poses_for(fitted, tgt))
+    deformed, _ = make_matcher("deform", **{**ACCURATE, **FAST, "pose_sources": POSE_SOURCES}).register(src, tgt, poses=_poses_for(fitted, tgt))
     np.testing.assert_array_equal(c.p2p_21, map_from_deformed(tgt, deformed, src.faces))
-    # two sampling starts per registration, the better kept
-    assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [2]
-    assert len(c.info["runs"]["target"]["runs"]) == 2 and "source" not in c.info["runs"]
+    # two sampling starts and the template in the best-fitting training pose, the best kept
+    assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [3]
+    runs = c.info["runs"]["target"]["runs"]
+    assert [r["source_pose"] is None for r in runs] == [True, True, False] and "source" not in c.info["runs"]
+    assert runs[2]["source_pose"] in builtin.splits["train"]
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5
     assert make_matcher("template", deform={"n_starts": 1})._deformer().get_params()["n_starts"] == 1
@@ -176,8 +179,11 @@ def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
     # without poses: none
     off = make_matcher("template", deform={**FAST, "n_starts": 1}, poses=False).fit([builtin[n] for n in ["syn00", *train]])
     assert off.poses_ == [] and off.training_shapes_ == ["syn00"]
-    # with training poses the registration has POSED_STARTS starts, without them ACCURATE's five
-    assert make_matcher("template").fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == POSED_STARTS == 2
+    # with training poses the registration has POSED_STARTS starts and POSE_SOURCES posed
+    # sources, without them ACCURATE's five starts and none
+    posed = make_matcher("template").fit([builtin[n] for n in ["syn00", *train]])._deformer()
+    assert posed.n_starts == POSED_STARTS == 2 and posed.pose_sources == POSE_SOURCES == 1
+    assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().pose_sources == 0
     assert make_matcher("template", deform={"n_starts": 1}).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == 1
     assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == ACCURATE["n_starts"]
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().n_starts == ACCURATE["n_starts"]  # no training shapes

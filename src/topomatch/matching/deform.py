@@ -1134,6 +1134,16 @@ class DeformMatcher(Matcher):
         shape) three took the training pairs kid00 -> kid01..kid15 from 2.70 to 2.37
         (one start, Dijkstra x100; attempt #86, ``docs/flagship.md``). ``0``: poses are
         ignored.
+    pose_sources : int
+        When :meth:`register` is given the source in other known poses: how many of
+        them (those of the best rigid alignments to the target, as ranked for
+        :func:`pose_hypotheses`) are also registered *as the source*, beside the
+        ``n_starts`` registrations of the source as it is: the posed source's vertices
+        are the rest state of the deformation graph, so a folded forearm that the pose
+        already folds is not straightened by the stiffness terms. Each such registration
+        (sampling start 0, no pose hypotheses) is judged with the others by its
+        full-mesh score; its distortion is measured against the pose. A prior from the
+        training poses only, like ``pose_keep``. ``0`` (default): none.
     pose_runs : {"every", "extra"}
         Where the pose hypotheses go: ``"every"``, into every registration (each
         sampling start and working size); ``"extra"``, into one more registration per
@@ -1190,6 +1200,7 @@ class DeformMatcher(Matcher):
         working_sizes: tuple[int, ...] = WORKING_SIZES,
         n_starts: int = 1,
         pose_keep: int = 3,
+        pose_sources: int = 0,
         pose_runs: str = "every",
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
@@ -1226,6 +1237,7 @@ class DeformMatcher(Matcher):
         self.working_sizes = working_sizes
         self.n_starts = n_starts
         self.pose_keep = pose_keep
+        self.pose_sources = pose_sources
         self.pose_runs = pose_runs
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
@@ -1283,6 +1295,9 @@ class DeformMatcher(Matcher):
             raise ValueError(f"continue_icp_iterations must be an integer >= 0, got {self.continue_icp_iterations!r}")
         if isinstance(self.pose_keep, (bool, np.bool_)) or not isinstance(self.pose_keep, (int, np.integer)) or self.pose_keep < 0:
             raise ValueError(f"pose_keep must be an integer >= 0, got {self.pose_keep!r}")
+        ps = self.pose_sources
+        if isinstance(ps, (bool, np.bool_)) or not isinstance(ps, (int, np.integer)) or ps < 0:
+            raise ValueError(f"pose_sources must be an integer >= 0, got {ps!r}")
         if self.pose_runs not in ("every", "extra"):
             raise ValueError(f"pose_runs must be 'every' or 'extra', got {self.pose_runs!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices", "n_starts"):
@@ -1327,6 +1342,29 @@ class DeformMatcher(Matcher):
         W, Nw = target.vertices[s2], target.vertex_normals[s2]
         for label, X, NX in memo["aligned"]:
             yield Hypothesis(label, _nearest_aligned(W, Nw, X, NX))
+
+    def _posed_sources(
+        self, source: TriangleMesh, target: TriangleMesh, poses: Sequence[tuple[str, FloatArray]], memo: dict[str, Any], n: int
+    ) -> list[int]:
+        """The indices of the ``n`` poses whose best rigid alignments to the target fit best (for ``pose_sources``).
+
+        Aligned as for :func:`pose_hypotheses`, on the samples of sampling start 0
+        (the start that aligns them for the hypotheses); the alignment of every pose
+        and frame is kept in ``memo``, whose first ``pose_keep`` are the hypotheses'.
+        """
+        if "ranked" not in memo:
+            # every alignment (at most five frames per pose), best first
+            s1, s2 = (farthest_point_sampling(min(self.n_samples, m.n_vertices), points=m.vertices, first=0) for m in (source, target))
+            ranked = align_poses(source, target, s1, s2, poses, n_keep=5 * len(poses), frames=tuple(self.rigid_frames))
+            memo["ranked"] = ranked
+            if self.pose_keep > 0 and "aligned" not in memo:  # the same sort: its first pose_keep are the hypotheses'
+                memo["aligned"] = ranked[: self.pose_keep]
+        order: list[int] = []
+        for label, _, _ in memo["ranked"]:
+            i = next(i for i, (name, _) in enumerate(poses) if label == f"pose {name}" or label.startswith(f"pose {name} axes "))
+            if i not in order:
+                order.append(i)
+        return order[:n]
 
     def _score(self, r: RegistrationResult) -> float:
         """The choice's and the limb judge's score: ``residual + distortion_weight x distortion``."""
@@ -1644,7 +1682,8 @@ class DeformMatcher(Matcher):
         poses = _checked_poses(source, poses)
         large = self.through_copies(source, target)
         extra = bool(poses) and self.pose_keep > 0 and self.pose_runs == "extra"
-        if not large and self.n_starts == 1 and not extra:
+        n_posed = int(self.pose_sources) if poses and self.rigid_frames else 0
+        if not large and self.n_starts == 1 and not extra and not n_posed:
             return self._register(source, target, settings, poses=poses)
         scale = float(np.sqrt(source.area))
         samples = (
@@ -1659,24 +1698,34 @@ class DeformMatcher(Matcher):
             t0 = time.perf_counter()
             src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
             src_poses, memo = poses, {}  # the poses are aligned once per size (on start 0's samples)
+            back = None if src is source else surface_weights(source.vertices, src)
             if poses and src is not source:
                 carry = surface_weights(src.vertices, source)
                 src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
             seconds["decimation"] += time.perf_counter() - t0
-            # (start, with the poses): "extra" registers the poses apart, from start 0
-            plan = [(k, not extra) for k in range(int(self.n_starts))] + ([(0, True)] if extra else [])
-            for start, with_poses in plan:
-                if (src.n_vertices, tgt.n_vertices, start, with_poses) in done:  # e.g. both meshes within two sizes
+            # (start, with the poses, posed source): "extra" registers the poses apart,
+            # from start 0; each posed source (an index into poses) is registered from start 0
+            plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))]
+            plan += [(0, True, None)] if extra else []
+            plan += [(0, False, i) for i in self._posed_sources(src, tgt, src_poses, memo, n_posed)] if n_posed else []
+            for start, with_poses, posed in plan:
+                key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
+                if key in done:  # e.g. both meshes within two sizes
                     continue
-                done.add((src.n_vertices, tgt.n_vertices, start, with_poses))
-                deformed, info = self._register(src, tgt, settings, start, src_poses if with_poses else (), memo)
+                done.add(key)
+                rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
+                deformed, info = self._register(rest, tgt, settings, start, src_poses if with_poses else (), memo)
+                if posed is not None:
+                    info["hypothesis"] = f"posed {src_poses[posed][0]}: {info['hypothesis']}"
                 t2 = time.perf_counter()
-                if src is not source:
-                    deformed = source.vertices + surface_weights(source.vertices, src) @ (deformed - src.vertices)
+                if back is not None:
+                    deformed = (source.vertices if posed is None else poses[posed][1]) + back @ (deformed - rest.vertices)
                 # judged on the full meshes and one set of samples: the runs' own residuals
                 # (their copies, their samples) are not comparable
                 residual = fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
-                info["run"] = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses), "vertices": (src.n_vertices, tgt.n_vertices), "full_residual": residual,
+                info["run"] = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
+                               "source_pose": None if posed is None else src_poses[posed][0],
+                               "vertices": (src.n_vertices, tgt.n_vertices), "full_residual": residual,
                                "score": residual + self.distortion_weight * float(info["distortion"]), "hypothesis": info["hypothesis"]}
                 if size is not None:
                     info["working_vertices"] = (src.n_vertices, tgt.n_vertices)

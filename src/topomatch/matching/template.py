@@ -42,12 +42,18 @@ from topomatch.matching.deform import ACCURATE, DeformMatcher, map_from_deformed
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["POSED_STARTS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+__all__ = ["POSED_STARTS", "POSE_SOURCES", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
 
 #: Sampling starts of a registration that has the training poses among its hypotheses.
 #: Chosen on the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra x100):
 #: one start 2.37, two 2.30, five 2.49 (attempt #86 in ``docs/flagship.md``).
 POSED_STARTS = 2
+
+#: Training poses also registered *as the template* (``DeformMatcher.pose_sources``: the best
+#: rigidly aligned pose is the rest state of one more registration), beside the starts.
+#: Training pairs (leave-one-out, Dijkstra x100): two starts 2.30 -> 2.04 with it; one
+#: start with it 2.08 (attempt #90 in ``docs/flagship.md``).
+POSE_SOURCES = 1
 
 
 def compose_through_template(target_to_template: IndexArray, template_to_source: IndexArray) -> IndexArray:
@@ -161,12 +167,15 @@ class TemplateMatcher(Matcher):
         Hyperparameters of the :class:`DeformMatcher` that registers the template. With
         training poses (see ``poses``) on top of ``deform``'s defaults with
         :data:`POSED_STARTS` (two) sampling starts, the poses among the hypotheses of
-        each. Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
+        each, and :data:`POSE_SOURCES` (one) more registration of the template *in*
+        the best-fitting training pose (``pose_sources``), the best full-mesh score
+        kept. Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
         sampling starts, the best fit kept). On the training pairs kid00 ->
-        kid01..kid15 (leave-one-out, Dijkstra x100) two starts with the poses scored
-        2.30, one start with them 2.37, five starts without them 2.36, five starts with
-        them 2.49 (attempt #86, ``docs/flagship.md``). ``{"n_starts": 1}`` halves the
-        time; ``{"n_starts": 5}`` gives five starts.
+        kid01..kid15 (leave-one-out, Dijkstra x100) two starts with the poses and the
+        posed source scored 2.04, one start and the posed source 2.08, two starts
+        with the poses alone 2.30, one start 2.37, five starts without them 2.36
+        (attempts #86, #90, ``docs/flagship.md``). ``{"pose_sources": 0}`` gives
+        session 29's setting; ``{"n_starts": 1}`` saves a third of the time.
     poses : bool, default True
         Give the registrations the template in the poses of the training shapes
         (:func:`pose_from_ground_truth` on the shapes with ground truth that ``fit``
@@ -221,8 +230,9 @@ class TemplateMatcher(Matcher):
         self.copy_starts = copy_starts
 
     def _deformer(self) -> DeformMatcher:
-        # with training poses two starts (the best on the training pairs, #86); without, ACCURATE
-        base = {"n_starts": POSED_STARTS} if getattr(self, "poses_", None) else dict(ACCURATE)
+        # with training poses two starts and the best-fitting pose as a source (the best on
+        # the training pairs, #86, #90); without, ACCURATE
+        base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES} if getattr(self, "poses_", None) else dict(ACCURATE)
         params = {**base, **(self.deform or {})}
         try:
             m = DeformMatcher(**params)
