@@ -1143,7 +1143,10 @@ class DeformMatcher(Matcher):
         already folds is not straightened by the stiffness terms. Each such registration
         (sampling start 0, no pose hypotheses) is judged with the others by its
         full-mesh score; its distortion is measured against the pose. A prior from the
-        training poses only, like ``pose_keep``. ``0`` (default): none.
+        training poses only, like ``pose_keep``. With ``template``'s two starts and the
+        training poses of ``kid00`` (leave-one-out), one took the training pairs kid00 ->
+        kid01..kid15 from 2.30 to 2.04 (Dijkstra x100); two were no better than one in
+        the study behind it (attempt #90, ``docs/flagship.md``). ``0`` (default): none.
     pose_runs : {"every", "extra"}
         Where the pose hypotheses go: ``"every"``, into every registration (each
         sampling start and working size); ``"extra"``, into one more registration per
