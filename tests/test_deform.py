@@ -555,8 +555,8 @@ def test_deform_verifies_the_pose_hypotheses(builtin, monkeypatch):
     import topomatch.matching.deform as deform_module
 
     calls = []
-    real = deform_module.align_poses
-    monkeypatch.setattr(deform_module, "align_poses", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = deform_module._rank_poses
+    monkeypatch.setattr(deform_module, "_rank_poses", lambda *a, **k: calls.append(1) or real(*a, **k))
     _, info2 = make_matcher("deform", **fast, n_starts=2).register(src, tgt, poses=poses)
     assert len(calls) == 1 and len(info2["runs"]) == 2
     assert all(run["hypothesis"].startswith("pose b") for run in info2["runs"])

@@ -439,7 +439,7 @@ def articulated_hypotheses(
     bent = bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles)
     scale = float(np.sqrt(target.area / source.area))
     posed = [(f"bent {label}", Vb, scale) for label, Vb in bent]
-    for label, X, NX in _align_posed(target, source.faces, samples_1, samples_2, posed, ("as-given",), n_keep, icp_iterations):
+    for label, X, NX, _ in _align_posed(target, source.faces, samples_1, samples_2, posed, ("as-given",), n_keep, icp_iterations):
         yield Hypothesis(label, _nearest_aligned(target.vertices[samples_2], target.vertex_normals[samples_2], X, NX))
 
 
@@ -450,16 +450,16 @@ def _align_posed(
     samples_2: IndexArray,
     posed: Sequence[tuple[str, FloatArray, float]],
     frames: tuple[str, ...],
-    n_keep: int,
+    n_keep: int | None,
     icp_iterations: int,
-) -> list[tuple[str, FloatArray, FloatArray]]:
-    """Rigidly align copies of the source in other poses to the target; the ``n_keep`` best fitting.
+) -> list[tuple[str, FloatArray, FloatArray, int]]:
+    """Rigidly align copies of the source in other poses to the target; the ``n_keep`` best fitting (all for ``None``).
 
     Each ``(label, vertices, scale)`` of ``posed`` is scaled, centred on the target and
     rotated by each start of ``frames`` (as in :func:`rigid_hypotheses`), refined by
     rigid ICP on the samples and scored by its mean capped two-sided distance to the
     target samples. Returns the ``n_keep`` best as (label, aligned vertices, their
-    normals), best first.
+    normals, index of the copy in ``posed``), best first.
     """
     s1 = np.asarray(samples_1)
     W = target.vertices[samples_2]
@@ -468,7 +468,7 @@ def _align_posed(
     c2 = target.vertices.mean(axis=0)
     tree = PointTree(W)
     scored = []
-    for name, Vb, scale in posed:
+    for index, (name, Vb, scale) in enumerate(posed):
         Nb = vertex_normals(Vb, faces)
         for suffix, R0 in _frame_rotations(Vb, target.vertices, frames):
             R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, R0, c2 - scale * (R0 @ Vb.mean(axis=0)), icp_iterations)
@@ -477,11 +477,11 @@ def _align_posed(
             _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
             _, d2 = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
             residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
-            scored.append((residual, name + suffix, Vb, Nb, R, t, scale))
+            scored.append((residual, name + suffix, Vb, Nb, R, t, scale, index))
     scored.sort(key=lambda x: x[0])
     for residual, label, *_ in scored[:n_keep]:
         logger.debug("%s: rigid residual %.4f", label, residual / np.sqrt(target.area))
-    return [(label, scale * Vb @ R.T + t, Nb @ R.T) for _, label, Vb, Nb, R, t, scale in scored[:n_keep]]
+    return [(label, scale * Vb @ R.T + t, Nb @ R.T, index) for _, label, Vb, Nb, R, t, scale, index in scored[:n_keep]]
 
 
 def _frame_rotations(V: FloatArray, target_vertices: FloatArray, frames: tuple[str, ...]) -> list[tuple[str, FloatArray]]:
@@ -567,6 +567,21 @@ def align_poses(
     list of (str, ndarray of shape (n_source, 3), ndarray of shape (n_source, 3))
         Label, the posed source's aligned vertices and their normals; best fitting first.
     """
+    ranked = _rank_poses(source, target, samples_1, samples_2, poses, n_keep, frames, icp_iterations)
+    return [(label, X, NX) for label, X, NX, _ in ranked]
+
+
+def _rank_poses(
+    source: TriangleMesh,
+    target: TriangleMesh,
+    samples_1: IndexArray,
+    samples_2: IndexArray,
+    poses: Sequence[tuple[str, FloatArray]],
+    n_keep: int | None,
+    frames: tuple[str, ...],
+    icp_iterations: int = 15,
+) -> list[tuple[str, FloatArray, FloatArray, int]]:
+    """:func:`align_poses` with each alignment's index into ``poses``; every alignment for ``n_keep=None``."""
     bad = [f for f in frames if f not in RIGID_FRAMES]
     if bad:
         raise ValueError(f"pose frames must be among {RIGID_FRAMES}, got {bad}")
@@ -1337,37 +1352,44 @@ class DeformMatcher(Matcher):
         self, source: TriangleMesh, target: TriangleMesh, s1: IndexArray, s2: IndexArray,
         poses: Sequence[tuple[str, FloatArray]], memo: dict[str, Any],
     ) -> Iterator[Hypothesis]:
-        """:func:`pose_hypotheses`, the alignments taken from ``memo`` when an earlier start made them."""
+        """:func:`pose_hypotheses`: the ``pose_keep`` best of :meth:`_ranked_poses` (made by an earlier start or on these samples)."""
         if not poses or self.pose_keep <= 0:
             return
-        if "aligned" not in memo:
-            memo["aligned"] = align_poses(source, target, s1, s2, poses, n_keep=self.pose_keep, frames=tuple(self.rigid_frames))
         W, Nw = target.vertices[s2], target.vertex_normals[s2]
-        for label, X, NX in memo["aligned"]:
+        for label, X, NX, _ in self._ranked_poses(source, target, s1, s2, poses, memo)[: self.pose_keep]:
             yield Hypothesis(label, _nearest_aligned(W, Nw, X, NX))
+
+    def _ranked_poses(
+        self, source: TriangleMesh, target: TriangleMesh, s1: IndexArray, s2: IndexArray,
+        poses: Sequence[tuple[str, FloatArray]], memo: dict[str, Any],
+    ) -> list[tuple[str, FloatArray, FloatArray, int]]:
+        """Every rigid alignment of the poses to the target, best first (:func:`align_poses` with pose indices).
+
+        Aligned on the samples ``s1, s2`` of the first call for the pair (start 0's:
+        :meth:`register` asks in start order) and kept in ``memo`` for the others.
+        """
+        if "ranked" not in memo:
+            memo["ranked"] = _rank_poses(source, target, s1, s2, poses, None, tuple(self.rigid_frames))
+        return memo["ranked"]
 
     def _posed_sources(
         self, source: TriangleMesh, target: TriangleMesh, poses: Sequence[tuple[str, FloatArray]], memo: dict[str, Any], n: int
     ) -> list[int]:
         """The indices of the ``n`` poses whose best rigid alignments to the target fit best (for ``pose_sources``).
 
-        Aligned as for :func:`pose_hypotheses`, on the samples of sampling start 0
-        (the start that aligns them for the hypotheses); the alignment of every pose
-        and frame is kept in ``memo``, whose first ``pose_keep`` are the hypotheses'.
+        The ranking of the pose hypotheses (:meth:`_ranked_poses`, on start 0's samples).
         """
-        if "ranked" not in memo:
-            # every alignment (at most five frames per pose), best first
-            s1, s2 = (farthest_point_sampling(min(self.n_samples, m.n_vertices), points=m.vertices, first=0) for m in (source, target))
-            ranked = align_poses(source, target, s1, s2, poses, n_keep=5 * len(poses), frames=tuple(self.rigid_frames))
-            memo["ranked"] = ranked
-            if self.pose_keep > 0 and "aligned" not in memo:  # the same sort: its first pose_keep are the hypotheses'
-                memo["aligned"] = ranked[: self.pose_keep]
+        ranked = self._ranked_poses(source, target, self._samples(source, 0), self._samples(target, 0), poses, memo)
         order: list[int] = []
-        for label, _, _ in memo["ranked"]:
-            i = next(i for i, (name, _) in enumerate(poses) if label == f"pose {name}" or label.startswith(f"pose {name} axes "))
+        for *_, i in ranked:
             if i not in order:
                 order.append(i)
         return order[:n]
+
+    def _samples(self, mesh: TriangleMesh, start: int) -> IndexArray:
+        """Start ``start``'s farthest-point samples of ``mesh`` (:func:`_start_vertex`): at most ``n_samples``."""
+        first = _start_vertex(mesh.n_vertices, start, self.n_starts)
+        return farthest_point_sampling(min(self.n_samples, mesh.n_vertices), points=mesh.vertices, first=first)
 
     def _score(self, r: RegistrationResult) -> float:
         """The choice's and the limb judge's score: ``residual + distortion_weight x distortion``."""
@@ -1401,10 +1423,9 @@ class DeformMatcher(Matcher):
         target_basis = None
         if self.background_eigenbasis and self._n_threads() > 1 and self.accept_residual <= 0:
             target_basis = target.eigenbasis_in_background(self.k_zoomout)
-        v1, v2 = (_start_vertex(m.n_vertices, start, self.n_starts) for m in (source, target))
-        s1 = farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=v1)
-        s2 = farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=v2)
-        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices), first=v1)
+        s1, s2 = self._samples(source, start), self._samples(target, start)
+        first = _start_vertex(source.n_vertices, start, self.n_starts)
+        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices), first=first)
         return (s1, s2), graph, target_basis
 
     def verify_hypotheses(
@@ -1689,10 +1710,7 @@ class DeformMatcher(Matcher):
         if not large and self.n_starts == 1 and not extra and not n_posed:
             return self._register(source, target, settings, poses=poses)
         scale = float(np.sqrt(source.area))
-        samples = (
-            farthest_point_sampling(min(self.n_samples, source.n_vertices), points=source.vertices, first=0),
-            farthest_point_sampling(min(self.n_samples, target.n_vertices), points=target.vertices, first=0),
-        )
+        samples = (self._samples(source, 0), self._samples(target, 0))
         tree = PointTree(target.vertices)
         runs: list[tuple[float, FloatArray, dict[str, Any]]] = []
         done: set[tuple[int, int, int, bool]] = set()
