@@ -786,6 +786,13 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
     assert [r["source_pose"] for r in info_c["runs"]] == [None, "b"] and info_c["run"] == 1
     assert copied.shape == src.vertices.shape
     assert np.median(cKDTree(tgt.vertices).query(copied)[0]) < 0.01 * scale
+    # start_sizes: the source as it is at the listed sizes only, the posed source at every size
+    sized = make_matcher("deform", **fast, pose_sources=1, working_vertices=1000, working_sizes=(1000, 1200), start_sizes=(1000,))
+    _, info_s = sized.register(src, tgt, poses=poses)
+    assert [(r["working_size"], r["source_pose"]) for r in info_s["runs"]] == [(1000, None), (1000, "b"), (1200, "b")]
+    for bad in ((), (1500,), 1000):
+        with pytest.raises(ValueError, match="start_sizes"):
+            make_matcher("deform", working_sizes=(1000, 1200), start_sizes=bad).register(src, tgt)
     # without poses there is nothing to register in a pose: one plain registration
     assert "runs" not in make_matcher("deform", **fast, pose_sources=1).register(src, tgt)[1]
     for bad in (-1, True, 1.5):

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 from scipy import sparse
 
 from topomatch.datasets.base import Shape
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
-from topomatch.matching.deform import ACCURATE, map_from_deformed
+from topomatch.matching.deform import ACCURATE, WORKING_SIZES, map_from_deformed
 from topomatch.matching.template import (
     POSE_SOURCES,
     POSED_STARTS,
@@ -97,6 +99,12 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     runs = c.info["runs"]["target"]["runs"]
     assert [r["source_pose"] is None for r in runs] == [True, True, False] and "source" not in c.info["runs"]
     assert runs[2]["source_pose"] in builtin.splits["train"]
+    # through working copies the template as it is runs at the smallest copy size only (the posed one at every size)
+    assert fitted._deformer().start_sizes == (min(WORKING_SIZES),)
+    other = copy.copy(fitted).set_params(deform={**FAST, "working_sizes": (12000, 9000)})
+    assert other._deformer().start_sizes == (9000,)
+    assert copy.copy(fitted).set_params(deform={**FAST, "start_sizes": None})._deformer().start_sizes is None
+    assert make_matcher("template").fit([builtin["syn00"]])._deformer().start_sizes is None  # no poses, no posed source
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5
     assert make_matcher("template", deform={"n_starts": 1})._deformer().get_params()["n_starts"] == 1

@@ -1132,6 +1132,14 @@ class DeformMatcher(Matcher):
         attempt #84), at about the three registrations' summed time. ``(12000,)``
         registers as session 25 did. ``info["runs"]`` lists every registration's size,
         start and score, ``info["run"]`` the kept one.
+    start_sizes : tuple of int or None
+        The sizes of ``working_sizes`` at which the source *as it is* is registered
+        (its ``n_starts`` starts, and ``pose_runs="extra"``'s run); the posed sources
+        (``pose_sources``) are registered at every size. ``None`` (default): every
+        size. ``template`` with training poses uses the smallest size: on the six
+        high-res training shapes of its benchmark a posed run won every registration
+        (session 30), and with ``(8000,)`` the six pairs' maps were identical at 41.5 s
+        per pair instead of 73.4 s (median; attempt #91, ``docs/flagship.md``).
     n_starts : int
         Registrations per pair (and per working size) whose farthest-point sampling
         (samples and graph nodes) begins at vertex ``k n / n_starts`` of each mesh,
@@ -1216,6 +1224,7 @@ class DeformMatcher(Matcher):
         limb_judge_iterations: int | None = None,
         working_vertices: int | None = 12000,
         working_sizes: tuple[int, ...] = WORKING_SIZES,
+        start_sizes: tuple[int, ...] | None = None,
         n_starts: int = 1,
         pose_keep: int = 3,
         pose_sources: int = 0,
@@ -1253,6 +1262,7 @@ class DeformMatcher(Matcher):
         self.limb_judge_iterations = limb_judge_iterations
         self.working_vertices = working_vertices
         self.working_sizes = working_sizes
+        self.start_sizes = start_sizes
         self.n_starts = n_starts
         self.pose_keep = pose_keep
         self.pose_sources = pose_sources
@@ -1293,6 +1303,9 @@ class DeformMatcher(Matcher):
             or not all(isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_)) and x >= 1000 for x in ws)
         ):
             raise ValueError(f"working_sizes must be a non-empty tuple of integers >= 1000, got {ws!r}")
+        ss = self.start_sizes
+        if ss is not None and (not isinstance(ss, (tuple, list)) or not ss or not all(x in ws for x in ss)):
+            raise ValueError(f"start_sizes must be None or a non-empty tuple of sizes among working_sizes {tuple(ws)}, got {ss!r}")
         if not isinstance(self.limb_rounds, (int, np.integer)) or self.limb_rounds < 0:
             raise ValueError(f"limb_rounds must be an integer >= 0, got {self.limb_rounds!r}")
         if not isinstance(self.limb_min_gain, (int, float, np.integer, np.floating)) or not 0 <= self.limb_min_gain < 1:
@@ -1726,8 +1739,9 @@ class DeformMatcher(Matcher):
             seconds["decimation"] += time.perf_counter() - t0
             # (start, with the poses, posed source): "extra" registers the poses apart,
             # from start 0; each posed source (an index into poses) is registered from start 0
-            plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))]
-            plan += [(0, True, None)] if extra else []
+            plain = size is None or self.start_sizes is None or size in self.start_sizes
+            plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
+            plan += [(0, True, None)] if extra and plain else []
             plan += [(0, False, i) for i in self._posed_sources(src, tgt, src_poses, memo, n_posed)] if n_posed else []
             for start, with_poses, posed in plan:
                 key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
