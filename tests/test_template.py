@@ -104,6 +104,7 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     other = copy.copy(fitted).set_params(deform={**FAST, "working_sizes": (12000, 9000)})
     assert other._deformer().start_sizes == (9000,)
     assert copy.copy(fitted).set_params(deform={**FAST, "start_sizes": None})._deformer().start_sizes is None
+    assert copy.copy(fitted).set_params(deform={**FAST, "pose_sources": 0})._deformer().start_sizes is None  # session 29's setting
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().start_sizes is None  # no poses, no posed source
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5

@@ -239,7 +239,7 @@ class TemplateMatcher(Matcher):
         base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES} if getattr(self, "poses_", None) else dict(ACCURATE)
         params = {**base, **(self.deform or {})}
         ws = params.get("working_sizes", WORKING_SIZES)
-        if base.get("pose_sources") and "start_sizes" not in params and isinstance(ws, (tuple, list)) and ws:
+        if base.get("pose_sources") and params.get("pose_sources") and "start_sizes" not in params and isinstance(ws, (tuple, list)) and ws:
             # the template as it is at the smallest copy size only: the posed one wins at high res (#91)
             params["start_sizes"] = (min(ws),)
         try:
