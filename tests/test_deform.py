@@ -795,6 +795,25 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
             make_matcher("deform", working_sizes=(1000, 1200), start_sizes=bad).register(src, tgt)
     # without poses there is nothing to register in a pose: one plain registration
     assert "runs" not in make_matcher("deform", **fast, pose_sources=1).register(src, tgt)[1]
+    # refine_runs: every run verified, the best by verified score refined (each as when all are)
+    info_all = info_s
+    assert all(r["refined"] for r in info_all["runs"])
+    assert info_all["run"] == int(np.argmin([r["score"] for r in info_all["runs"]]))
+    for n in (1, 2):
+        part, info_n = make_matcher("deform", **fast, pose_sources=1, working_vertices=1000, working_sizes=(1000, 1200),
+                                    start_sizes=(1000,), refine_runs=n).register(src, tgt, poses=poses)
+        runs_n = info_n["runs"]
+        assert [r["verified_score"] for r in runs_n] == [r["verified_score"] for r in info_all["runs"]]
+        lead = sorted(np.argsort([r["verified_score"] for r in runs_n], kind="stable")[:n].tolist())
+        assert [i for i, r in enumerate(runs_n) if r["refined"]] == lead
+        assert all(r["score"] is None and r["full_residual"] is None for r in runs_n if not r["refined"])
+        for i in lead:  # a refinement does not depend on which others are refined
+            assert runs_n[i]["score"] == info_all["runs"][i]["score"]
+        assert info_n["run"] in lead and runs_n[info_n["run"]]["score"] == min(runs_n[i]["score"] for i in lead)
+        assert part.shape == src.vertices.shape
+    for bad in (0, -1, True, 1.5):
+        with pytest.raises(ValueError, match="refine_runs"):
+            make_matcher("deform", refine_runs=bad).register(src, tgt)
     for bad in (-1, True, 1.5):
         with pytest.raises(ValueError, match="pose_sources"):
             make_matcher("deform", pose_sources=bad).register(src, tgt)

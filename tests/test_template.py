@@ -14,6 +14,7 @@ from topomatch.matching.deform import ACCURATE, WORKING_SIZES, map_from_deformed
 from topomatch.matching.template import (
     POSE_SOURCES,
     POSED_STARTS,
+    REFINED_RUNS,
     compose_through_template,
     mirrored_pose,
     pose_from_ground_truth,
@@ -92,13 +93,18 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     c = fitted.match(src, tgt)
     assert c.info["registrations"] == {"target": "computed", "source": "is the template"}
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
-    deformed, _ = make_matcher("deform", **{**ACCURATE, **FAST, "pose_sources": POSE_SOURCES}).register(src, tgt, poses=_poses_for(fitted, tgt))
+    params = {**ACCURATE, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS}
+    deformed, _ = make_matcher("deform", **params).register(src, tgt, poses=_poses_for(fitted, tgt))
     np.testing.assert_array_equal(c.p2p_21, map_from_deformed(tgt, deformed, src.faces))
     # two sampling starts and the template in the best-fitting training pose, the best kept
     assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [3]
     runs = c.info["runs"]["target"]["runs"]
     assert [r["source_pose"] is None for r in runs] == [True, True, False] and "source" not in c.info["runs"]
     assert runs[2]["source_pose"] in builtin.splits["train"]
+    # only the two that lead after verification are refined; the kept one is among them
+    assert sum(r["refined"] for r in runs) == REFINED_RUNS == 2 and runs[c.info["runs"]["target"]["kept"]]["refined"]
+    lead = sorted(np.argsort([r["verified_score"] for r in runs], kind="stable")[:2].tolist())
+    assert [i for i, r in enumerate(runs) if r["refined"]] == lead
     # through working copies the template as it is runs at the smallest copy size only (the posed one at every size)
     assert fitted._deformer().start_sizes == (min(WORKING_SIZES),)
     other = copy.copy(fitted).set_params(deform={**FAST, "working_sizes": (12000, 9000)})
@@ -106,6 +112,11 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert copy.copy(fitted).set_params(deform={**FAST, "start_sizes": None})._deformer().start_sizes is None
     assert copy.copy(fitted).set_params(deform={**FAST, "pose_sources": 0})._deformer().start_sizes is None  # session 29's setting
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().start_sizes is None  # no poses, no posed source
+    # refine_runs likewise: two with the posed source, unless told otherwise
+    assert fitted._deformer().refine_runs == REFINED_RUNS
+    assert copy.copy(fitted).set_params(deform={**FAST, "refine_runs": None})._deformer().refine_runs is None
+    assert copy.copy(fitted).set_params(deform={**FAST, "pose_sources": 0})._deformer().refine_runs is None
+    assert make_matcher("template").fit([builtin["syn00"]])._deformer().refine_runs is None
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5
     assert make_matcher("template", deform={"n_starts": 1})._deformer().get_params()["n_starts"] == 1

@@ -144,6 +144,22 @@ class Hypothesis:
 
 
 @dataclass
+class _Verified:
+    """One registration's steps 1-2 (hypotheses and their verification), waiting for steps 3-6."""
+
+    source: TriangleMesh
+    target: TriangleMesh
+    start: int
+    samples: tuple[IndexArray, IndexArray]
+    graph: DeformationGraph
+    hyps: list[Hypothesis]
+    results: list[RegistrationResult]
+    order: IndexArray
+    """The results by residual, best first."""
+    seconds: float
+
+
+@dataclass
 class _Spectral:
     evals: FloatArray
     basis_evecs: FloatArray
@@ -1177,6 +1193,17 @@ class DeformMatcher(Matcher):
         best full-mesh score of all kept. Training pairs (attempt #86): one start 2.37
         either way ("extra" at twice the time), five starts 2.49 ("every") and 2.40
         ("extra"), against 2.36 for five starts without poses.
+    refine_runs : int or None
+        When :meth:`register` makes several registrations (``n_starts``, working sizes,
+        ``pose_sources``, ``pose_runs="extra"``): how many of them get steps 3-6 (swaps,
+        continuation, limb turns, fine registration), which cost about half of each.
+        Every registration is verified first; its best verified registration is scored
+        on the full meshes like a finished one (fit residual plus ``distortion_weight``
+        x distortion), and the ``refine_runs`` best by that score are refined, the best
+        final score of those kept. ``None`` (default): all of them, as before. ``template``
+        with training poses uses 2 of its 3 low-res registrations: on the training pairs
+        14 of 15 maps were identical and the pooled error 2.0367 -> 2.0366 (Dijkstra x100;
+        one refinement fewer per shape; attempt #97, ``docs/flagship.md``).
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
         the GIL in their tree queries and array operations); ``None``: the CPU count,
@@ -1229,6 +1256,7 @@ class DeformMatcher(Matcher):
         pose_keep: int = 3,
         pose_sources: int = 0,
         pose_runs: str = "every",
+        refine_runs: int | None = None,
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
     ) -> None:
@@ -1267,6 +1295,7 @@ class DeformMatcher(Matcher):
         self.pose_keep = pose_keep
         self.pose_sources = pose_sources
         self.pose_runs = pose_runs
+        self.refine_runs = refine_runs
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
 
@@ -1329,6 +1358,9 @@ class DeformMatcher(Matcher):
         ps = self.pose_sources
         if isinstance(ps, (bool, np.bool_)) or not isinstance(ps, (int, np.integer)) or ps < 0:
             raise ValueError(f"pose_sources must be an integer >= 0, got {ps!r}")
+        rr = self.refine_runs
+        if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
+            raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
         if self.pose_runs not in ("every", "extra"):
             raise ValueError(f"pose_runs must be 'every' or 'extra', got {self.pose_runs!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices", "n_starts"):
@@ -1725,9 +1757,20 @@ class DeformMatcher(Matcher):
         scale = float(np.sqrt(source.area))
         samples = (self._samples(source, 0), self._samples(target, 0))
         tree = PointTree(target.vertices)
-        runs: list[tuple[float, FloatArray, dict[str, Any]]] = []
-        done: set[tuple[int, int, int, bool]] = set()
+        # every registration is verified first (steps 1-2); the refine_runs best by their
+        # best verified registration's full-mesh score are then refined (steps 3-6)
+        pending: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
+        done: set[tuple[int, int, int, bool, int | None]] = set()
         seconds = {"decimation": 0.0, "hypotheses_and_verification": 0.0, "refinement": 0.0}
+
+        def carried(deformed: FloatArray, v: _Verified, back: FloatArray | None, home: FloatArray) -> tuple[FloatArray, float]:
+            """A registration of ``v``'s copy as the source's own vertices, and its fit residual on the full meshes."""
+            if back is not None:
+                deformed = home + back @ (deformed - v.source.vertices)
+            # judged on the full meshes and one set of samples: the runs' own residuals
+            # (their copies, their samples) are not comparable
+            return deformed, fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
+
         for size in [int(x) for x in self.working_sizes] if large else [None]:
             t0 = time.perf_counter()
             src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
@@ -1749,28 +1792,41 @@ class DeformMatcher(Matcher):
                     continue
                 done.add(key)
                 rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
-                deformed, info = self._register(rest, tgt, settings, start, src_poses if with_poses else (), memo)
-                if posed is not None:
-                    info["hypothesis"] = f"posed {src_poses[posed][0]}: {info['hypothesis']}"
-                t2 = time.perf_counter()
-                if back is not None:
-                    deformed = (source.vertices if posed is None else poses[posed][1]) + back @ (deformed - rest.vertices)
-                # judged on the full meshes and one set of samples: the runs' own residuals
-                # (their copies, their samples) are not comparable
-                residual = fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
-                info["run"] = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
-                               "source_pose": None if posed is None else src_poses[posed][0],
-                               "vertices": (src.n_vertices, tgt.n_vertices), "full_residual": residual,
-                               "score": residual + self.distortion_weight * float(info["distortion"]), "hypothesis": info["hypothesis"]}
-                if size is not None:
-                    info["working_vertices"] = (src.n_vertices, tgt.n_vertices)
-                seconds["hypotheses_and_verification"] += info["seconds"]["hypotheses_and_verification"]
-                seconds["refinement"] += info["seconds"]["refinement"] + time.perf_counter() - t2
-                runs.append((info["run"]["score"], deformed, info))
-        k = int(np.argmin([r[0] for r in runs]))  # the first of equals: the smaller copy, the earlier start
-        _, deformed, info = runs[k]
-        info["runs"] = [i.pop("run") for _, _, i in runs]
-        info["run"] = k
+                v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo)
+                seconds["hypotheses_and_verification"] += v.seconds
+                t1 = time.perf_counter()
+                home = source.vertices if posed is None else poses[posed][1]
+                best = v.results[v.order[0]]
+                _, verified = carried(best.deformed, v, back, home)
+                label = v.hyps[v.order[0]].label
+                run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
+                       "source_pose": None if posed is None else src_poses[posed][0],
+                       "vertices": (src.n_vertices, tgt.n_vertices),
+                       "verified_score": verified + self.distortion_weight * float(best.distortion),
+                       "refined": False, "full_residual": None, "score": None,
+                       "hypothesis": label if posed is None else f"posed {src_poses[posed][0]}: {label}"}
+                seconds["hypotheses_and_verification"] += time.perf_counter() - t1
+                pending.append((v, run, back, home))
+        n_refine = len(pending) if self.refine_runs is None else min(int(self.refine_runs), len(pending))
+        lead = np.argsort([run["verified_score"] for _, run, _, _ in pending], kind="stable")[:n_refine]
+        finished: list[tuple[float, FloatArray, dict[str, Any]]] = []
+        for k in sorted(int(i) for i in lead):  # in plan order: equal scores go to the smaller copy, the earlier start
+            v, run, back, home = pending[k]
+            deformed, info = self._refined(v)
+            t2 = time.perf_counter()
+            if run["source_pose"] is not None:
+                info["hypothesis"] = f"posed {run['source_pose']}: {info['hypothesis']}"
+            deformed, residual = carried(deformed, v, back, home)
+            run.update(refined=True, full_residual=residual, score=residual + self.distortion_weight * float(info["distortion"]),
+                       hypothesis=info["hypothesis"])
+            if run["working_size"] is not None:
+                info["working_vertices"] = run["vertices"]
+            seconds["refinement"] += info["seconds"]["refinement"] + time.perf_counter() - t2
+            finished.append((run["score"], deformed, info))
+            info["run"] = k
+        j_best = int(np.argmin([f[0] for f in finished]))  # the first of equals
+        _, deformed, info = finished[j_best]
+        info["runs"] = [run for _, run, _, _ in pending]
         info["seconds"] = seconds
         return deformed, info
 
@@ -1784,23 +1840,40 @@ class DeformMatcher(Matcher):
         memo: dict[str, Any] | None = None,
     ) -> tuple[FloatArray, dict[str, Any]]:
         """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`), one start."""
+        return self._refined(self._verified(source, target, settings, start, poses, memo))
+
+    def _verified(
+        self,
+        source: TriangleMesh,
+        target: TriangleMesh,
+        settings: list[tuple[str, int, bool]],
+        start: int = 0,
+        poses: Sequence[tuple[str, FloatArray]] = (),
+        memo: dict[str, Any] | None = None,
+    ) -> _Verified:
+        """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification."""
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
         hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo)
         order = np.argsort([r.residual for r in results], kind="stable")
+        return _Verified(source, target, start, samples, graph, hyps, results, order, time.perf_counter() - t0)
+
+    def _refined(self, v: _Verified) -> tuple[FloatArray, dict[str, Any]]:
+        """Steps 3-6 of a verified registration: the deformed source and the diagnostics."""
         t1 = time.perf_counter()
         with one_blas_thread():
-            i_best, r_best, swaps, continued, limbs = self._refine(source, target, hyps, results, order, samples, graph, start)
-        t2 = time.perf_counter()
+            i_best, r_best, swaps, continued, limbs = self._refine(
+                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start
+            )
         info = {
-            "hypothesis": hyps[i_best].label,
-            "residuals": {h.label: float(r.residual) for h, r in zip(hyps, results)},
+            "hypothesis": v.hyps[i_best].label,
+            "residuals": {h.label: float(r.residual) for h, r in zip(v.hyps, v.results)},
             "swaps": swaps,
             "continued": continued,
             "limbs": limbs,
             "residual": r_best.residual,
             "distortion": r_best.distortion,
-            "seconds": {"hypotheses_and_verification": t1 - t0, "refinement": t2 - t1},
+            "seconds": {"hypotheses_and_verification": v.seconds, "refinement": time.perf_counter() - t1},
         }
         return r_best.deformed, info
 

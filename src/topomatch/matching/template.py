@@ -42,7 +42,7 @@ from topomatch.matching.deform import ACCURATE, WORKING_SIZES, DeformMatcher, ma
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["POSED_STARTS", "POSE_SOURCES", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+__all__ = ["POSED_STARTS", "POSE_SOURCES", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
 
 #: Sampling starts of a registration that has the training poses among its hypotheses.
 #: Chosen on the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra x100):
@@ -54,6 +54,12 @@ POSED_STARTS = 2
 #: Training pairs (leave-one-out, Dijkstra x100): two starts 2.30 -> 2.04 with it; one
 #: start with it 2.08 (attempt #90 in ``docs/flagship.md``).
 POSE_SOURCES = 1
+
+#: Of those registrations (two starts, the posed source; more through working copies), how
+#: many are refined (``DeformMatcher.refine_runs``): the best by their verified
+#: registrations' full-mesh scores. Training pairs (leave-one-out, Dijkstra x100): all three
+#: 2.0367, two 2.0366 (14 of 15 maps identical), one 2.31 (attempt #97 in ``docs/flagship.md``).
+REFINED_RUNS = 2
 
 
 def compose_through_template(target_to_template: IndexArray, template_to_source: IndexArray) -> IndexArray:
@@ -179,7 +185,10 @@ class TemplateMatcher(Matcher):
         working copies (high res) the template as it is is registered at the smallest
         copy size only and the posed one at every size (``start_sizes``, attempt #91:
         the six high-res training pairs' maps unchanged at 41.5 s per pair instead of
-        73.4 s); ``{"start_sizes": None}`` registers both at every size.
+        73.4 s); ``{"start_sizes": None}`` registers both at every size. Of these
+        registrations only the :data:`REFINED_RUNS` (two) whose verified registrations
+        score best on the full meshes are refined (``refine_runs``, attempt #97);
+        ``{"refine_runs": None}`` refines them all.
     poses : bool, default True
         Give the registrations the template in the poses of the training shapes
         (:func:`pose_from_ground_truth` on the shapes with ground truth that ``fit``
@@ -239,9 +248,13 @@ class TemplateMatcher(Matcher):
         base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES} if getattr(self, "poses_", None) else dict(ACCURATE)
         params = {**base, **(self.deform or {})}
         ws = params.get("working_sizes", WORKING_SIZES)
-        if base.get("pose_sources") and params.get("pose_sources") and "start_sizes" not in params and isinstance(ws, (tuple, list)) and ws:
+        posed = bool(base.get("pose_sources") and params.get("pose_sources"))
+        if posed and "start_sizes" not in params and isinstance(ws, (tuple, list)) and ws:
             # the template as it is at the smallest copy size only: the posed one wins at high res (#91)
             params["start_sizes"] = (min(ws),)
+        if posed and "refine_runs" not in params:
+            # only the registrations that lead after verification are refined (#97)
+            params["refine_runs"] = REFINED_RUNS
         try:
             m = DeformMatcher(**params)
         except TypeError as err:
