@@ -54,6 +54,7 @@ map is read off.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import os
@@ -468,6 +469,7 @@ def _align_posed(
     frames: tuple[str, ...],
     n_keep: int | None,
     icp_iterations: int,
+    n_threads: int = 1,
 ) -> list[tuple[str, FloatArray, FloatArray, int]]:
     """Rigidly align copies of the source in other poses to the target; the ``n_keep`` best fitting (all for ``None``).
 
@@ -475,7 +477,8 @@ def _align_posed(
     rotated by each start of ``frames`` (as in :func:`rigid_hypotheses`), refined by
     rigid ICP on the samples and scored by its mean capped two-sided distance to the
     target samples. Returns the ``n_keep`` best as (label, aligned vertices, their
-    normals, index of the copy in ``posed``), best first.
+    normals, index of the copy in ``posed``), best first. The alignments run on
+    ``n_threads`` threads; the result does not depend on it.
     """
     s1 = np.asarray(samples_1)
     W = target.vertices[samples_2]
@@ -483,17 +486,23 @@ def _align_posed(
     cap = 0.05 * float(np.sqrt(target.area))
     c2 = target.vertices.mean(axis=0)
     tree = PointTree(W)
-    scored = []
+    jobs = []
     for index, (name, Vb, scale) in enumerate(posed):
         Nb = vertex_normals(Vb, faces)
         for suffix, R0 in _frame_rotations(Vb, target.vertices, frames):
-            R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, R0, c2 - scale * (R0 @ Vb.mean(axis=0)), icp_iterations)
-            X = scale * Vb[s1] @ R.T + t
-            NX = Nb[s1] @ R.T
-            _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
-            _, d2 = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
-            residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
-            scored.append((residual, name + suffix, Vb, Nb, R, t, scale, index))
+            jobs.append((index, name + suffix, Vb, Nb, scale, R0))
+
+    def align(job: tuple[int, str, FloatArray, FloatArray, float, FloatArray]) -> tuple[float, str, FloatArray, FloatArray, FloatArray, FloatArray, float, int]:
+        index, label, Vb, Nb, scale, R0 = job
+        R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, R0, c2 - scale * (R0 @ Vb.mean(axis=0)), icp_iterations)
+        X = scale * Vb[s1] @ R.T + t
+        NX = Nb[s1] @ R.T
+        _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
+        _, d2 = nearest_compatible(W, Nw, PointTree(X), NX, min_cos=0.3)
+        residual = 0.5 * (float(np.mean(np.minimum(d1, cap))) + float(np.mean(np.minimum(d2, cap))))
+        return residual, label, Vb, Nb, R, t, scale, index
+
+    scored = _thread_map(align, jobs, n_threads)  # in the jobs' order, so ties sort as before
     scored.sort(key=lambda x: x[0])
     for residual, label, *_ in scored[:n_keep]:
         logger.debug("%s: rigid residual %.4f", label, residual / np.sqrt(target.area))
@@ -596,8 +605,9 @@ def _rank_poses(
     n_keep: int | None,
     frames: tuple[str, ...],
     icp_iterations: int = 15,
+    n_threads: int = 1,
 ) -> list[tuple[str, FloatArray, FloatArray, int]]:
-    """:func:`align_poses` with each alignment's index into ``poses``; every alignment for ``n_keep=None``."""
+    """:func:`align_poses` with each alignment's index into ``poses``; every alignment for ``n_keep=None`` (on ``n_threads`` threads)."""
     bad = [f for f in frames if f not in RIGID_FRAMES]
     if bad:
         raise ValueError(f"pose frames must be among {RIGID_FRAMES}, got {bad}")
@@ -607,7 +617,7 @@ def _rank_poses(
         if not area > 0:
             raise ValueError(f"pose {name!r}: the posed source has zero area")
         posed.append((f"pose {name}", P, float(np.sqrt(target.area / area))))
-    return _align_posed(target, source.faces, samples_1, samples_2, posed, frames, n_keep, icp_iterations)
+    return _align_posed(target, source.faces, samples_1, samples_2, posed, frames, n_keep, icp_iterations, n_threads)
 
 
 def source_limbs(graph: DeformationGraph, *, min_nodes: int = 3) -> list[IndexArray]:
@@ -1414,7 +1424,8 @@ class DeformMatcher(Matcher):
         :meth:`register` asks in start order) and kept in ``memo`` for the others.
         """
         if "ranked" not in memo:
-            memo["ranked"] = _rank_poses(source, target, s1, s2, poses, None, tuple(self.rigid_frames))
+            with one_blas_thread():
+                memo["ranked"] = _rank_poses(source, target, s1, s2, poses, None, tuple(self.rigid_frames), n_threads=self._n_threads())
         return memo["ranked"]
 
     def _posed_sources(
@@ -1809,11 +1820,20 @@ class DeformMatcher(Matcher):
                 pending.append((v, run, back, home))
         n_refine = len(pending) if self.refine_runs is None else min(int(self.refine_runs), len(pending))
         lead = np.argsort([run["verified_score"] for _, run, _, _ in pending], kind="stable")[:n_refine]
+        chosen = sorted(int(i) for i in lead)  # in plan order: equal scores go to the smaller copy, the earlier start
+        t2 = time.perf_counter()
+        if self._n_threads() > 1 and len(chosen) > 1:
+            # side by side, one thread each (a refinement's result does not depend on its threads;
+            # alone, it keeps about 1.3 of two cores busy)
+            solo = copy.copy(self)
+            solo.n_threads = 1
+            with one_blas_thread():
+                refined = _thread_map(lambda k: solo._refined(pending[k][0]), chosen, self._n_threads())
+        else:
+            refined = [self._refined(pending[k][0]) for k in chosen]
         finished: list[tuple[float, FloatArray, dict[str, Any]]] = []
-        for k in sorted(int(i) for i in lead):  # in plan order: equal scores go to the smaller copy, the earlier start
+        for k, (deformed, info) in zip(chosen, refined):
             v, run, back, home = pending[k]
-            deformed, info = self._refined(v)
-            t2 = time.perf_counter()
             if run["source_pose"] is not None:
                 info["hypothesis"] = f"posed {run['source_pose']}: {info['hypothesis']}"
             deformed, residual = carried(deformed, v, back, home)
@@ -1821,9 +1841,9 @@ class DeformMatcher(Matcher):
                        hypothesis=info["hypothesis"])
             if run["working_size"] is not None:
                 info["working_vertices"] = run["vertices"]
-            seconds["refinement"] += info["seconds"]["refinement"] + time.perf_counter() - t2
             finished.append((run["score"], deformed, info))
             info["run"] = k
+        seconds["refinement"] += time.perf_counter() - t2
         j_best = int(np.argmin([f[0] for f in finished]))  # the first of equals
         _, deformed, info = finished[j_best]
         info["runs"] = [run for _, run, _, _ in pending]
