@@ -1216,8 +1216,11 @@ class DeformMatcher(Matcher):
         one refinement fewer per shape; attempt #97, ``docs/flagship.md``).
     n_threads : int or None
         Threads for the verification and the continued registrations (they release
-        the GIL in their tree queries and array operations); ``None``: the CPU count,
-        at most 4. The result does not depend on it. The verification ignores it when
+        the GIL in their tree queries and array operations), for the poses' rigid
+        alignments, and for the refinements of several registrations (``n_starts``,
+        working sizes, posed sources), which then run side by side on one thread each
+        (alone, one keeps about 1.3 of two cores busy); ``None``: the CPU count, at
+        most 4. The result does not depend on it. The verification ignores it when
         ``accept_residual > 0`` (the early exit needs them in order).
     background_eigenbasis : bool
         With two or more threads, compute the target's eigenbasis in a forked process
