@@ -60,7 +60,8 @@ import logging
 import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass
 from functools import partial
 from itertools import chain, product
@@ -168,6 +169,14 @@ class _Spectral:
     coeffs: dict
     mult_ops: dict
     orient_ops: dict
+
+
+def _collected(v: _Verified) -> _Verified:
+    """``v`` with its verifications' results (futures when submitted to a shared pool) in hand, and their order."""
+    t0 = time.perf_counter()
+    results = [r.result() if isinstance(r, Future) else r for r in v.results]
+    order = np.argsort([r.residual for r in results], kind="stable")
+    return dataclasses.replace(v, results=results, order=order, seconds=v.seconds + time.perf_counter() - t0)
 
 
 def _spectral_data(mesh: TriangleMesh, kinds: tuple[str, ...], k_ops: int, k_basis: int, n_desc: int, n_ops: int) -> _Spectral:
@@ -1219,7 +1228,9 @@ class DeformMatcher(Matcher):
         the GIL in their tree queries and array operations), for the poses' rigid
         alignments, and for the refinements of several registrations (``n_starts``,
         working sizes, posed sources), which then run side by side on one thread each
-        (alone, one keeps about 1.3 of two cores busy); ``None``: the CPU count, at
+        (alone, one keeps about 1.3 of two cores busy); their verifications share one
+        pool, so that the next registration's hypotheses are made while the previous
+        ones are verified (attempt #100, ``docs/flagship.md``); ``None``: the CPU count, at
         most 4. The result does not depend on it. The verification ignores it when
         ``accept_residual > 0`` (the early exit needs them in order).
     background_eigenbasis : bool
@@ -1517,7 +1528,8 @@ class DeformMatcher(Matcher):
         target_basis: EigenbasisJob | None = None,
         poses: Sequence[tuple[str, FloatArray]] = (),
         memo: dict[str, Any] | None = None,
-    ) -> tuple[list[Hypothesis], list[RegistrationResult]]:
+        pool: ThreadPoolExecutor | None = None,
+    ) -> tuple[list[Hypothesis], list[Any]]:
         """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
 
         ``memo`` keeps the poses' alignments (:func:`align_poses`) and the shapes'
@@ -1564,7 +1576,7 @@ class DeformMatcher(Matcher):
                     break
             return hyps, results
         n = self._n_threads()
-        if n <= 1:
+        if n <= 1 and pool is None:
             hyps = list(chain(spectral, extrinsic, others))
             with one_blas_thread():
                 results = self._map(verify, hyps)
@@ -1572,14 +1584,18 @@ class DeformMatcher(Matcher):
         # pipelined: the extrinsic hypotheses (cheap) are verified on the pool while this
         # thread computes the spectral ones (the costly part); the lists keep the order
         # spectral, extrinsic, others. The registrations' small dense solves lose to BLAS
-        # threads competing with ours.
-        with one_blas_thread(), ThreadPoolExecutor(max_workers=n) as pool:
-            later = [(h, pool.submit(verify, h)) for h in extrinsic]
+        # threads competing with ours. With a ``pool`` from the caller the verifications
+        # are only submitted (their futures returned): :meth:`register` makes the next
+        # run's hypotheses while the pool verifies this one's.
+        with one_blas_thread(), (nullcontext(pool) if pool is not None else ThreadPoolExecutor(max_workers=n)) as ex:
+            later = [(h, ex.submit(verify, h)) for h in extrinsic]
             if target_basis is not None:  # waits without the GIL while the pool verifies
                 target_basis.result()
-            first = [(h, pool.submit(verify, h)) for h in spectral]
-            last = [(h, pool.submit(verify, h)) for h in others]
+            first = [(h, ex.submit(verify, h)) for h in spectral]
+            last = [(h, ex.submit(verify, h)) for h in others]
             done = first + later + last
+            if pool is not None:
+                return [h for h, _ in done], [f for _, f in done]
             return [h for h, _ in done], [f.result() for _, f in done]
 
     def _refine(
@@ -1785,42 +1801,50 @@ class DeformMatcher(Matcher):
             # (their copies, their samples) are not comparable
             return deformed, fit_residual(deformed, source.faces, target.vertices, target.vertex_normals, tree, scale=scale, samples=samples)
 
-        for size in [int(x) for x in self.working_sizes] if large else [None]:
-            t0 = time.perf_counter()
-            src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
-            src_poses, memo = poses, {}  # the poses are aligned once per size (on start 0's samples)
-            back = None if src is source else surface_weights(source.vertices, src)
-            if poses and src is not source:
-                carry = surface_weights(src.vertices, source)
-                src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
-            seconds["decimation"] += time.perf_counter() - t0
-            # (start, with the poses, posed source): "extra" registers the poses apart,
-            # from start 0; each posed source (an index into poses) is registered from start 0
-            plain = size is None or self.start_sizes is None or size in self.start_sizes
-            plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
-            plan += [(0, True, None)] if extra and plain else []
-            plan += [(0, False, i) for i in self._posed_sources(src, tgt, src_poses, memo, n_posed)] if n_posed else []
-            for start, with_poses, posed in plan:
-                key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
-                if key in done:  # e.g. both meshes within two sizes
-                    continue
-                done.add(key)
-                rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
-                v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo)
-                seconds["hypotheses_and_verification"] += v.seconds
-                t1 = time.perf_counter()
-                home = source.vertices if posed is None else poses[posed][1]
-                best = v.results[v.order[0]]
-                _, verified = carried(best.deformed, v, back, home)
-                label = v.hyps[v.order[0]].label
-                run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
-                       "source_pose": None if posed is None else src_poses[posed][0],
-                       "vertices": (src.n_vertices, tgt.n_vertices),
-                       "verified_score": verified + self.distortion_weight * float(best.distortion),
-                       "refined": False, "full_residual": None, "score": None,
-                       "hypothesis": label if posed is None else f"posed {src_poses[posed][0]}: {label}"}
-                seconds["hypotheses_and_verification"] += time.perf_counter() - t1
-                pending.append((v, run, back, home))
+        # with threads, one pool verifies every run's hypotheses: this thread makes the next
+        # run's samples and hypotheses while the pool verifies the previous ones' (the
+        # results do not depend on it; each verification runs on one BLAS thread)
+        shared = self._n_threads() > 1 and self.accept_residual <= 0
+        submitted: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
+        t_verify = time.perf_counter()
+        with (one_blas_thread() if shared else nullcontext()), (ThreadPoolExecutor(max_workers=self._n_threads()) if shared else nullcontext()) as pool:
+            for size in [int(x) for x in self.working_sizes] if large else [None]:
+                t0 = time.perf_counter()
+                src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
+                src_poses, memo = poses, {}  # the poses are aligned once per size (on start 0's samples)
+                back = None if src is source else surface_weights(source.vertices, src)
+                if poses and src is not source:
+                    carry = surface_weights(src.vertices, source)
+                    src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
+                seconds["decimation"] += time.perf_counter() - t0
+                # (start, with the poses, posed source): "extra" registers the poses apart,
+                # from start 0; each posed source (an index into poses) is registered from start 0
+                plain = size is None or self.start_sizes is None or size in self.start_sizes
+                plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
+                plan += [(0, True, None)] if extra and plain else []
+                plan += [(0, False, i) for i in self._posed_sources(src, tgt, src_poses, memo, n_posed)] if n_posed else []
+                for start, with_poses, posed in plan:
+                    key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
+                    if key in done:  # e.g. both meshes within two sizes
+                        continue
+                    done.add(key)
+                    rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
+                    v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool)
+                    home = source.vertices if posed is None else poses[posed][1]
+                    run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
+                           "source_pose": None if posed is None else src_poses[posed][0],
+                           "vertices": (src.n_vertices, tgt.n_vertices)}
+                    submitted.append((v, run, back, home))
+            submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
+        for v, run, back, home in submitted:
+            best = v.results[v.order[0]]
+            _, verified = carried(best.deformed, v, back, home)
+            label = v.hyps[v.order[0]].label
+            run.update({"verified_score": verified + self.distortion_weight * float(best.distortion),
+                        "refined": False, "full_residual": None, "score": None,
+                        "hypothesis": label if run["source_pose"] is None else f"posed {run['source_pose']}: {label}"})
+            pending.append((v, run, back, home))
+        seconds["hypotheses_and_verification"] += time.perf_counter() - t_verify - seconds["decimation"]
         n_refine = len(pending) if self.refine_runs is None else min(int(self.refine_runs), len(pending))
         lead = np.argsort([run["verified_score"] for _, run, _, _ in pending], kind="stable")[:n_refine]
         chosen = sorted(int(i) for i in lead)  # in plan order: equal scores go to the smaller copy, the earlier start
@@ -1873,13 +1897,17 @@ class DeformMatcher(Matcher):
         start: int = 0,
         poses: Sequence[tuple[str, FloatArray]] = (),
         memo: dict[str, Any] | None = None,
+        pool: ThreadPoolExecutor | None = None,
     ) -> _Verified:
-        """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification."""
+        """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification.
+
+        With a ``pool`` the verifications are only submitted: :func:`_collected` waits for them.
+        """
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo)
-        order = np.argsort([r.residual for r in results], kind="stable")
-        return _Verified(source, target, start, samples, graph, hyps, results, order, time.perf_counter() - t0)
+        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool)
+        v = _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0)
+        return v if pool is not None else _collected(v)
 
     def _refined(self, v: _Verified) -> tuple[FloatArray, dict[str, Any]]:
         """Steps 3-6 of a verified registration: the deformed source and the diagnostics."""
