@@ -13,6 +13,7 @@ from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
 from topomatch.matching import MATCHERS, make_matcher
 from topomatch.matching.deform import (
+    _rank_poses,
     _sphere_directions,
     articulated_hypotheses,
     bend_in_two,
@@ -812,13 +813,11 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
         assert info_n["run"] in lead and runs_n[info_n["run"]]["score"] == min(runs_n[i]["score"] for i in lead)
         assert part.shape == src.vertices.shape
     # the refinements run side by side and the poses are ranked on threads: the same on one thread
-    import topomatch.matching.deform as deform_module
-
     one, info_one = make_matcher("deform", **fast, pose_sources=1, working_vertices=1000, working_sizes=(1000, 1200),
                                  start_sizes=(1000,), refine_runs=2, n_threads=1).register(src, tgt, poses=poses)
     np.testing.assert_array_equal(one, part)
     assert [r["score"] for r in info_one["runs"]] == [r["score"] for r in runs_n]
-    ranked = [deform_module._rank_poses(src, tgt, *samples, poses, None, ("as-given", "principal-axes"), n_threads=n) for n in (1, 2)]
+    ranked = [_rank_poses(src, tgt, *samples, poses, None, ("as-given", "principal-axes"), n_threads=n) for n in (1, 2)]
     assert [r[0] for r in ranked[0]] == [r[0] for r in ranked[1]] and all(np.array_equal(a[1], b[1]) for a, b in zip(*ranked))
     for bad in (0, -1, True, 1.5):
         with pytest.raises(ValueError, match="refine_runs"):

@@ -155,9 +155,10 @@ class _Verified:
     samples: tuple[IndexArray, IndexArray]
     graph: DeformationGraph
     hyps: list[Hypothesis]
-    results: list[RegistrationResult]
+    results: list[Any]
+    """The verifications' RegistrationResults (futures on a shared pool) once :func:`_collected`."""
     order: IndexArray
-    """The results by residual, best first."""
+    """The results by residual, best first (empty until :func:`_collected`)."""
     seconds: float
 
 
@@ -1887,7 +1888,7 @@ class DeformMatcher(Matcher):
         memo: dict[str, Any] | None = None,
     ) -> tuple[FloatArray, dict[str, Any]]:
         """:meth:`register` on meshes of working size (``settings`` from :meth:`_check`), one start."""
-        return self._refined(self._verified(source, target, settings, start, poses, memo))
+        return self._refined(_collected(self._verified(source, target, settings, start, poses, memo)))
 
     def _verified(
         self,
@@ -1901,13 +1902,13 @@ class DeformMatcher(Matcher):
     ) -> _Verified:
         """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification.
 
-        With a ``pool`` the verifications are only submitted: :func:`_collected` waits for them.
+        The results are ordered by :func:`_collected`, which also waits for them when they
+        were only submitted to a ``pool``.
         """
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
         hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool)
-        v = _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0)
-        return v if pool is not None else _collected(v)
+        return _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0)
 
     def _refined(self, v: _Verified) -> tuple[FloatArray, dict[str, Any]]:
         """Steps 3-6 of a verified registration: the deformed source and the diagnostics."""
