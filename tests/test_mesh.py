@@ -4,6 +4,7 @@ import pytest
 from topomatch.datasets.toy import grid, icosphere, torus
 from topomatch.mesh import TriangleMesh
 from topomatch.mesh import geometry as g
+from topomatch.mesh.sampling import farthest_point_sampling
 
 
 def test_single_triangle_geometry():
@@ -112,3 +113,28 @@ def test_vertex_normals_kernel_has_the_numpy_formula_s_bits():
         g.vertex_normals(V, np.array([[0, -1, 2]]))
     with pytest.raises(ValueError, match="must be"):
         g.vertex_normals(V[:, :2], F)
+
+
+def _fps_reference(n_samples: int, points: np.ndarray, first: int) -> np.ndarray:
+    """Farthest-point sampling in plain numpy (the formula the compiled kernel must equal bit for bit)."""
+    dmin = np.full(len(points), np.inf)
+    out, cur = [], first
+    for _ in range(n_samples):
+        out.append(cur)
+        dmin = np.minimum(dmin, np.sqrt(np.sum((points - points[cur]) ** 2, axis=1)))
+        dmin[out] = -1.0
+        cur = int(np.argmax(dmin))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("dim", [3, 2, 7])
+def test_farthest_point_sampling_equals_the_numpy_formula(dim):
+    rng = np.random.default_rng(dim)
+    X = rng.standard_normal((700, dim))
+    lattice = rng.integers(0, 3, (300, dim)).astype(float)  # duplicates and distance ties: first index wins
+    for pts, first in ((X, 0), (X, 411), (lattice, 5)):
+        np.testing.assert_array_equal(farthest_point_sampling(250, points=pts, first=first), _fps_reference(250, pts, first))
+    with pytest.raises(ValueError, match="first"):
+        farthest_point_sampling(5, points=X, first=700)
+    with pytest.raises(ValueError, match="finite"):
+        farthest_point_sampling(5, points=np.r_[X, [[np.nan] * dim]], first=0)

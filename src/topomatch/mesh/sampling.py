@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from topomatch._kernels import farthest_points
 from topomatch._validation import check_random_state
 from topomatch.typing import FloatArray, IndexArray, RandomState
 
@@ -44,22 +45,22 @@ def farthest_point_sampling(
     if (points is None) == (distance_fn is None):
         raise ValueError("give exactly one of points or distance_fn")
     if points is not None:
-        # coordinates as rows, one reused buffer: the same sums as np.linalg.norm(pts - pts[i],
-        # axis=1), without allocating an (n, d) difference per sample
         cols = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
         n = cols.shape[1]
-        buf = np.empty_like(cols)
-
-        def dist(i: int) -> FloatArray:
-            np.subtract(cols, cols[:, i : i + 1], out=buf)
-            np.multiply(buf, buf, out=buf)
-            return np.sqrt(buf.sum(axis=0))
-
-    else:
-        if n_points is None:
-            raise ValueError("n_points is required with distance_fn")
-        n = n_points
-        dist = distance_fn  # type: ignore[assignment]
+        if not 1 <= n_samples <= n:
+            raise ValueError(f"n_samples must lie in [1, {n}], got {n_samples}")
+        if not np.isfinite(cols).all():
+            raise ValueError("farthest_point_sampling: points must be finite")
+        rng = check_random_state(random_state)
+        cur = int(rng.integers(n)) if first is None else int(first)
+        if not 0 <= cur < n:
+            raise ValueError(f"first must lie in [0, {n}), got {first}")
+        out = np.empty(n_samples, dtype=np.int64)
+        farthest_points(cols, cur, out)  # compiled, one pass per sample, no temporaries
+        return out
+    if n_points is None:
+        raise ValueError("n_points is required with distance_fn")
+    n = n_points
     if not 1 <= n_samples <= n:
         raise ValueError(f"n_samples must lie in [1, {n}], got {n_samples}")
     rng = check_random_state(random_state)
@@ -68,7 +69,7 @@ def farthest_point_sampling(
     dmin = np.full(n, np.inf)
     for k in range(n_samples):
         out[k] = cur
-        dmin = np.minimum(dmin, dist(cur))
+        dmin = np.minimum(dmin, distance_fn(cur))
         dmin[out[: k + 1]] = -1.0
         cur = int(np.argmax(dmin))
     return out
