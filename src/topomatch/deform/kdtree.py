@@ -4,15 +4,16 @@ Every closest-point iteration of :func:`topomatch.deform.register.register`, eve
 turn tried by :func:`topomatch.matching.deform.turn_limb` and every fit residual asks
 the same question: for each query point, the nearest reference point whose normal
 agrees with the query's (among its ``k`` nearest; the nearest when none agrees).
-:class:`PointTree` answers it in one compiled pass per query, without the second
-``k``-nearest query that a generic tree needs for the queries whose nearest point
-disagrees, and without holding the GIL, so the registrations that run on threads search
-side by side. The answers are exact and equal to a brute-force search's (the
-registration's maps were unchanged against scipy's ``cKDTree``). On the queries of one
-``deform`` match (kid00 -> kid13, one thread, every tenth query, ``benchmarks/bench_kdtree.py``) they
-took 0.42 s against 0.73 s (x1.4 for 1,500 queries into the 10K-vertex target, x2-2.5
-for the limb turns' queries into small parts); building is slower (2.1 ms against
-1.2 ms at 10K points), which the registration avoids by refitting.
+:class:`PointTree` answers it in one compiled depth-first search per query (since
+session 35; before, a second ``k``-nearest search followed for the queries whose nearest
+point disagrees, about 30 % of a registration's), without holding the GIL, so the
+registrations that run on threads search side by side. The answers are exact and equal
+to a brute-force search's (the registration's maps were unchanged against scipy's
+``cKDTree``, and again by the one-search form). On the queries of one ``deform`` match
+(kid00 -> kid13, one thread, every tenth query, ``benchmarks/bench_kdtree.py``) they
+took 0.128 s against 0.387 s for ``cKDTree`` (x3.0; the two-search form: 0.203 s, x1.9;
+all 444,651 answers equal); building is slower (about 1.1 ms against 0.8 ms at 10K
+points), which the registration avoids by refitting.
 
 A tree built on one set of positions answers exactly for moved positions of the same
 points after :meth:`PointTree.refit` (only the boxes are recomputed, O(n)), which the
@@ -202,32 +203,112 @@ def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stac
             sp += 1
 
 
+@numba.njit(inline="always")
+def _box_d2_3(qx, qy, qz, bmin, bmax, node):  # pragma: no cover - compiled
+    """:func:`_box_d2` unrolled for three dimensions."""
+    t0 = max(bmin[node, 0] - qx, qx - bmax[node, 0], 0.0)
+    t1 = max(bmin[node, 1] - qy, qy - bmax[node, 1], 0.0)
+    t2 = max(bmin[node, 2] - qz, qz - bmax[node, 2], 0.0)
+    return t0 * t0 + t1 * t1 + t2 * t2
+
+
 @numba.njit(cache=True, nogil=True)
 def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_cos, out_i, out_d):  # pragma: no cover
+    """For each query, the nearest compatible point among its ``k`` nearest (else the nearest), in one search (3-D).
+
+    The two-search formulation (the nearest; when its normal disagrees, the ``k``
+    nearest) in one depth-first pass: the pass keeps the nearest compatible point found
+    and the ``k`` nearest incompatible ones, and prunes at the nearer of the compatible
+    point and the ``k``-th incompatible one (a compatible point beyond ``k`` closer
+    incompatible ones is not among the ``k`` nearest). Same answers (up to exact
+    distance ties), about two thirds of the time: about 30 % of a registration's
+    queries found their nearest point's normal disagreeing and searched twice.
+    """
     stack_n = np.empty(2 * len(lo) + 2, np.int64)
     stack_d = np.empty(2 * len(lo) + 2)
-    bd = np.empty(max(k, 1))
-    bi = np.empty(max(k, 1), np.int64)
+    inc_d = np.empty(max(k, 1))
+    inc_i = np.empty(max(k, 1), np.int64)
+    k = max(k, 1)
+    use_normals = k > 1
+    for q in range(Q.shape[0]):
+        qx, qy, qz = Q[q, 0], Q[q, 1], Q[q, 2]
+        nx = ny = nz = 0.0
+        if use_normals:
+            nx, ny, nz = NQ[q, 0], NQ[q, 1], NQ[q, 2]
+        for j in range(k):
+            inc_d[j] = np.inf
+            inc_i[j] = -1
+        bc_d = np.inf  # the nearest compatible point so far
+        bc_i = -1
+        bound = np.inf
+        stack_n[0] = 0
+        stack_d[0] = 0.0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack_n[sp]
+            if stack_d[sp] >= bound:
+                continue
+            if left[node] < 0:
+                for i in range(lo[node], hi[node]):
+                    a = Ps[i, 0] - qx
+                    b = Ps[i, 1] - qy
+                    c = Ps[i, 2] - qz
+                    d2 = a * a + b * b + c * c
+                    if d2 >= bound:
+                        continue
+                    p = perm[i]
+                    if not use_normals or nx * RN[p, 0] + ny * RN[p, 1] + nz * RN[p, 2] >= min_cos:
+                        bc_d = d2
+                        bc_i = p
+                    else:  # into the sorted k nearest incompatible (equal distances keep the visit order)
+                        j = k - 1
+                        while j > 0 and inc_d[j - 1] > d2:
+                            inc_d[j] = inc_d[j - 1]
+                            inc_i[j] = inc_i[j - 1]
+                            j -= 1
+                        inc_d[j] = d2
+                        inc_i[j] = p
+                    bound = min(bc_d, inc_d[k - 1])
+                continue
+            a = left[node]
+            da = _box_d2_3(qx, qy, qz, bmin, bmax, a)
+            db = _box_d2_3(qx, qy, qz, bmin, bmax, a + 1)
+            if da <= db:
+                near, d_near, far, d_far = a, da, a + 1, db
+            else:
+                near, d_near, far, d_far = a + 1, db, a, da
+            if d_far < bound:
+                stack_n[sp] = far
+                stack_d[sp] = d_far
+                sp += 1
+            if d_near < bound:
+                stack_n[sp] = near
+                stack_d[sp] = d_near
+                sp += 1
+        closer = 0  # incompatible points nearer than the compatible one
+        for j in range(k):
+            if inc_d[j] < bc_d:
+                closer += 1
+        if bc_i >= 0 and closer < k:
+            out_i[q] = bc_i
+            out_d[q] = np.sqrt(bc_d)
+        else:  # no compatible point among the k nearest: the nearest
+            out_i[q] = inc_i[0]
+            out_d[q] = np.sqrt(inc_d[0])
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest(Ps, perm, lo, hi, left, bmin, bmax, Q, out_i, out_d):  # pragma: no cover
+    """The nearest point of each query (any dimension)."""
+    stack_n = np.empty(2 * len(lo) + 2, np.int64)
+    stack_d = np.empty(2 * len(lo) + 2)
+    bd = np.empty(1)
+    bi = np.empty(1, np.int64)
     for q in range(Q.shape[0]):
         _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], 1, bd, bi, stack_n, stack_d)
-        j = bi[0]
-        out_i[q] = j
+        out_i[q] = bi[0]
         out_d[q] = np.sqrt(bd[0])
-        if k <= 1:
-            continue
-        c = NQ[q, 0] * RN[j, 0] + NQ[q, 1] * RN[j, 1] + NQ[q, 2] * RN[j, 2]
-        if c >= min_cos:
-            continue
-        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], k, bd, bi, stack_n, stack_d)
-        for m in range(k):
-            jj = bi[m]
-            if jj < 0:
-                break
-            c = NQ[q, 0] * RN[jj, 0] + NQ[q, 1] * RN[jj, 1] + NQ[q, 2] * RN[jj, 2]
-            if c >= min_cos:
-                out_i[q] = jj
-                out_d[q] = np.sqrt(bd[m])
-                break
 
 
 def _points(x: FloatArray, name: str) -> np.ndarray:
@@ -390,6 +471,5 @@ class JointTree:
         Q = self._checked(points, self.dim)
         out_i = np.empty(len(Q), dtype=np.int64)
         out_d = np.empty(len(Q), dtype=np.float64)
-        no_normals = np.zeros((0, 3))  # k = 1: the nearest, no normal test
-        _nearest_compatible(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, no_normals, no_normals, 1, 0.0, out_i, out_d)
+        _nearest(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, out_i, out_d)
         return out_d, out_i
