@@ -122,3 +122,4 @@ def farthest_points(cols, first, out):  # pragma: no cover - compiled
             if dmin[i] > dmin[best]:
                 best = i
         cur = best
+

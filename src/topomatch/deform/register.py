@@ -469,6 +469,13 @@ class GraphDeformation:
         self._lg: FloatArray | None = None
         self._lg_scale: FloatArray | None = None
         self._last = _LastFactor()
+        self._rows: tuple[IndexArray, sparse.csr_matrix] | None = None
+
+    def _skin_rows(self, source: IndexArray) -> sparse.csr_matrix:
+        """``skin[source]``, kept for the same index array (an iteration's rotation and position steps share their pairs)."""
+        if self._rows is None or self._rows[0] is not source:
+            self._rows = (source, self._skin[source])
+        return self._rows[1]
 
     # ---- evaluation ------------------------------------------------------------------------
     def _affine_part(self, subset: IndexArray | None = None, skin_rows: sparse.csr_matrix | None = None) -> FloatArray:
@@ -518,7 +525,7 @@ class GraphDeformation:
         S = np.asarray(self._Ia @ outer).reshape(m, 3, 3)
         if pairs is not None and len(pairs.source) and data_weight > 0:
             # S_a += sum_i P_ia c_i (v_i - g0_a)(y_i - g_a)^T, expanded into sparse products
-            Pt = self._skin[pairs.source].T  # (m, p), CSC: the products sum over pairs in order, as with CSR
+            Pt = self._skin_rows(pairs.source).T  # (m, p), CSC: the products sum over pairs in order, as with CSR
             c = data_weight * pairs.weights
             v = self.vertices[pairs.source]
             y = pairs.points
@@ -559,7 +566,7 @@ class GraphDeformation:
         Lg = self._regulariser(wl)
         rhs = self._D @ (wl[:, None] * d)  # (m, 3)
         # data
-        P = self._skin[pairs.source]  # (p, m)
+        P = self._skin_rows(pairs.source)  # (p, m)
         PT = P.T  # CSC view, (m, p)
         resid = pairs.points - self._affine_part(pairs.source, P)  # y - a_i, (p, 3)
         c = pairs.weights
