@@ -290,9 +290,14 @@ def test_deform_keeps_the_sampling_start_with_the_best_score(pair, monkeypatch):
     spectral_calls = []
     real = deform_module._spectral_data
     monkeypatch.setattr(deform_module, "_spectral_data", lambda mesh, *a: spectral_calls.append(mesh.content_hash) or real(mesh, *a))
+    solves = []
+    real_solve = deform_module.solve_fmap
+    monkeypatch.setattr(deform_module, "solve_fmap", lambda *a, **k: solves.append(a[0].shape) or real_solve(*a, **k))
     c = make_matcher("deform", n_starts=3, **kw).match(src, tgt)
-    # the shapes' spectral data (basis, descriptors, operators) are computed once, not per start
+    # the shapes' spectral data (basis, descriptors, operators) and the initial functional
+    # map of each setting (one here) are computed once, not per start
     assert sorted(spectral_calls) == sorted([src.content_hash, tgt.content_hash])
+    assert len(solves) == 1
     runs = c.info["runs"]
     assert [r["start"] for r in runs] == [0, 1, 2] and all(r["working_size"] is None for r in runs)
     scores = [r["score"] for r in runs]

@@ -227,9 +227,10 @@ def spectral_hypotheses(
     weights : FmapWeights, optional
         Default: ``FmapWeights(orientation=1.0)``.
     cache : dict, optional
-        Keeps each shape's eigenbasis, descriptors and operators (they do not depend on
-        the samples) for later calls on the same pair with other samples, e.g. the
-        sampling starts of :class:`DeformMatcher` (``n_starts``).
+        Keeps each shape's eigenbasis, descriptors and operators and the initial
+        functional maps (none depends on the samples) for later calls on the same pair
+        with other samples, e.g. the sampling starts of :class:`DeformMatcher`
+        (``n_starts``).
 
     Yields
     ------
@@ -254,11 +255,17 @@ def spectral_hypotheses(
     m2 = s2.mass[samples_2] * (s2.mass.sum() / s2.mass[samples_2].sum())
     for kind, k, rev in settings:
         sign = -1.0 if rev else 1.0
-        C = solve_fmap(
-            s1.coeffs[kind][:k], s2.coeffs[kind][:k], s1.evals[:k], s2.evals[:k], weights=weights,
-            commutativity_ops=(s1.mult_ops[kind][:, :k, :k], s2.mult_ops[kind][:, :k, :k]),
-            orientation_ops=(s1.orient_ops[kind][:, :k, :k], sign * s2.orient_ops[kind][:, :k, :k]),
-        )
+        # the initial map does not depend on the samples: solved once per pair and setting
+        c_key = (key, kind, k, rev, weights)
+        C = cache.get(c_key) if cache is not None else None
+        if C is None:
+            C = solve_fmap(
+                s1.coeffs[kind][:k], s2.coeffs[kind][:k], s1.evals[:k], s2.evals[:k], weights=weights,
+                commutativity_ops=(s1.mult_ops[kind][:, :k, :k], s2.mult_ops[kind][:, :k, :k]),
+                orientation_ops=(s1.orient_ops[kind][:, :k, :k], sign * s2.orient_ops[kind][:, :k, :k]),
+            )
+            if cache is not None:
+                cache[c_key] = C
         for kk in zoomout_schedule(k, k_zoomout, step)[1:]:
             kc = C.shape[0]
             p = nearest_neighbors(e1[:, :kc] @ C.T, e2[:, :kc])
