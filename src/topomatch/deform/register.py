@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import sparse
-from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial import cKDTree
 
+from topomatch._lapack import cholesky_solve
 from topomatch.deform.graph import DeformationGraph
 from topomatch.deform.kdtree import JointTree, PointTree
 from topomatch.mesh.geometry import vertex_normals
@@ -380,13 +380,14 @@ class _GramPattern:
         eps = 1e-8 * float(np.concatenate([blocks[i, i][self.diagonal] if (i, i) in blocks else np.zeros(m) for i in range(d)]).mean())
         r, c = self.rows, self.cols
         if size <= _DENSE_SOLVE_MAX:
-            H = np.zeros((size, size))
+            H = np.zeros((size, size), order="F")  # LAPACK's order: factorised in place
             for (i, j), v in blocks.items():
                 H[i * m + r, j * m + c] = v
                 if i != j:  # the upper triangle of H holds the whole off-diagonal block
                     H[i * m + c, j * m + r] = v
             H[np.diag_indices(size)] += eps
-            return cho_solve(cho_factor(H, lower=False, overwrite_a=True, check_finite=False), rhs + eps * x0, check_finite=False)
+            # cho_solve(cho_factor(H)) bit for bit, without holding the GIL (threads solve side by side)
+            return cholesky_solve(H, rhs + eps * x0)
         keys = tuple(sorted(blocks))
         layout = self._layouts.get(keys)
         if layout is None:

@@ -1,0 +1,114 @@
+"""LAPACK's Cholesky solve called from compiled code, so that threads solve side by side.
+
+``scipy.linalg.cho_factor`` and ``cho_solve`` hold the GIL while LAPACK runs (measured:
+two threads factorising 450 x 450 matrices took as long as one thread doing both
+matrices' work). The registrations that :class:`~topomatch.matching.deform.DeformMatcher`
+verifies on threads solve such a system in every iteration, so each solve stalled the
+other thread. Here the same LAPACK routines of SciPy's own LAPACK (``dpotrf`` then
+``dpotrs``, upper triangle, through :mod:`scipy.linalg.cython_lapack`) are called from a
+numba function that releases the GIL: the same routine on the same Fortran-ordered
+matrix, hence the same bits as ``cho_solve(cho_factor(a, lower=False), b)``.
+
+Where the LAPACK entry points cannot be found (an unusual SciPy build),
+:func:`cholesky_solve` falls back to SciPy's functions, with the same results.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+from topomatch.typing import FloatArray
+
+__all__ = ["cholesky_solve"]
+
+
+def _lapack_address(name: str) -> int:
+    """The address of a routine of :mod:`scipy.linalg.cython_lapack` (a PyCapsule in its C API table)."""
+    from scipy.linalg import cython_lapack
+
+    capsule = cython_lapack.__pyx_capi__[name]
+    get_name = ctypes.pythonapi.PyCapsule_GetName
+    get_name.restype = ctypes.c_char_p
+    get_name.argtypes = [ctypes.py_object]
+    get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
+    get_pointer.restype = ctypes.c_void_p
+    get_pointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+    address = get_pointer(capsule, get_name(capsule))
+    if not address:
+        raise RuntimeError(f"no address for LAPACK {name}")
+    return int(address)
+
+
+def _compiled() -> Callable[[FloatArray, FloatArray], int] | None:
+    """The compiled factorise-and-solve, or ``None`` when LAPACK's entry points are not reachable."""
+    try:
+        import numba
+
+        vp = ctypes.c_void_p
+        potrf = ctypes.CFUNCTYPE(None, vp, vp, vp, vp, vp)(_lapack_address("dpotrf"))
+        potrs = ctypes.CFUNCTYPE(None, vp, vp, vp, vp, vp, vp, vp, vp)(_lapack_address("dpotrs"))
+    except Exception:  # pragma: no cover - unusual SciPy builds
+        return None
+
+    # not cached on disk: the routines' addresses change from process to process
+    @numba.njit(nogil=True)
+    def factor_solve(A: Any, B: Any) -> int:  # pragma: no cover - compiled
+        n = A.shape[0]
+        uplo = np.array([ord("U")], np.uint8)
+        size = np.array([n], np.int32)
+        cols = np.array([B.shape[1]], np.int32)
+        info = np.zeros(1, np.int32)
+        potrf(uplo.ctypes, size.ctypes, A.ctypes, size.ctypes, info.ctypes)
+        if info[0] != 0:
+            return info[0]
+        potrs(uplo.ctypes, size.ctypes, cols.ctypes, A.ctypes, size.ctypes, B.ctypes, size.ctypes, info.ctypes)
+        return info[0]
+
+    return factor_solve  # type: ignore[no-any-return]
+
+
+_FACTOR_SOLVE: list[Callable[[FloatArray, FloatArray], int] | None] = []
+
+
+def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Solve ``a x = b`` for a symmetric positive definite ``a`` from its upper triangle, without the GIL.
+
+    Bit for bit ``cho_solve(cho_factor(a, lower=False, check_finite=False), b)``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, n)
+        Only the upper triangle is read. Overwritten by the factor when it is
+        Fortran-ordered float64 (build it with ``order="F"`` to avoid a copy).
+    b : ndarray, shape (n,) or (n, r)
+
+    Returns
+    -------
+    ndarray, shape of ``b``
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When ``a`` is not positive definite.
+    """
+    if not _FACTOR_SOLVE:
+        _FACTOR_SOLVE.append(_compiled())
+    fn = _FACTOR_SOLVE[0]
+    b = np.asarray(b, dtype=np.float64)
+    if fn is None:  # pragma: no cover - unusual SciPy builds
+        return cho_solve(cho_factor(a, lower=False, overwrite_a=True, check_finite=False), b, check_finite=False)
+    A = np.asfortranarray(a, dtype=np.float64)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or b.shape[:1] != A.shape[:1] or b.ndim not in (1, 2):
+        raise ValueError(f"cholesky_solve: a must be (n, n) and b (n,) or (n, r), got {A.shape} and {b.shape}")
+    B = np.array(b.reshape(len(b), -1), dtype=np.float64, order="F")
+    info = fn(A, B)
+    if info > 0:
+        raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
+    if info < 0:  # pragma: no cover - the arguments are built here
+        raise ValueError(f"LAPACK: illegal value in the {-info}-th argument")
+    return B.reshape(b.shape)
