@@ -29,8 +29,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
+from topomatch._lapack import cholesky_solve
 from topomatch.mesh.geometry import face_normals
 from topomatch.mesh.laplacian import gradient_operator
 from topomatch.mesh.mesh import TriangleMesh
@@ -304,7 +304,11 @@ def solve_fmap(
             raise ValueError(f"{label} must have shapes (f, {k1}, {k1}) and (f, {k2}, {k2}), got {X.shape} and {Y.shape}")
         _add_commutativity(H, X, Y, w * inverse_mean_diagonal(_commutativity_trace(X, Y)))
     H[np.diag_indices(n)] += 1e-10 * max(float(np.trace(H)) / n, 1e-300)
-    c = scipy.linalg.solve(H, rhs, assume_a="pos")
+    if not (np.isfinite(H).all() and np.isfinite(rhs).all()):
+        raise ValueError("solve_fmap: the system is not finite (non-finite descriptors, eigenvalues or operators)")
+    # scipy.linalg.solve(H, rhs, assume_a="pos") bit for bit (the same LAPACK Cholesky on
+    # the same Fortran-ordered matrix), without holding the GIL and without its checks' cost
+    c = cholesky_solve(np.asfortranarray(H), rhs)
     return c.reshape(k2, k1)
 
 
