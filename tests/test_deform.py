@@ -287,6 +287,7 @@ def test_deform_keeps_the_sampling_start_with_the_best_score(pair, monkeypatch):
     assert "runs" not in one.info  # one start: registered as before
     import topomatch.matching.deform as deform_module
 
+    deform_module._SPECTRAL.clear()  # the shapes' spectral data are kept across registrations
     spectral_calls = []
     real = deform_module._spectral_data
     monkeypatch.setattr(deform_module, "_spectral_data", lambda mesh, *a: spectral_calls.append(mesh.content_hash) or real(mesh, *a))

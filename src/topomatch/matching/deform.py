@@ -58,7 +58,9 @@ import copy
 import dataclasses
 import logging
 import os
+import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import nullcontext
@@ -193,6 +195,35 @@ def _spectral_data(mesh: TriangleMesh, kinds: tuple[str, ...], k_ops: int, k_bas
     return _Spectral(scale_free_evals(basis), basis.evecs, basis.mass, coeffs, mult, orient)
 
 
+_SPECTRAL_KEPT = 4
+"""Shapes whose spectral data (:func:`_spectral_data`) stay in memory, the latest used:
+a template's, registered onto every shape, and the shapes of the pairs at hand."""
+
+_SPECTRAL: OrderedDict[tuple[Any, ...], _Spectral] = OrderedDict()
+_SPECTRAL_LOCK = threading.Lock()
+
+
+def _shape_spectral(mesh: TriangleMesh, kinds: tuple[str, ...], k_ops: int, k_basis: int, n_desc: int, n_ops: int) -> _Spectral:
+    """:func:`_spectral_data`, kept for the ``_SPECTRAL_KEPT`` shapes used last (by content: a pure function of the mesh).
+
+    A shape's data do not depend on the other shape or on the samples: the target's
+    serve every registration onto it (sampling starts, posed sources), the template's
+    every pair.
+    """
+    key = (mesh.content_hash, kinds, k_ops, k_basis, n_desc, n_ops)
+    with _SPECTRAL_LOCK:
+        data = _SPECTRAL.get(key)
+        if data is not None:
+            _SPECTRAL.move_to_end(key)
+            return data
+    data = _spectral_data(mesh, kinds, k_ops, k_basis, n_desc, n_ops)
+    with _SPECTRAL_LOCK:
+        _SPECTRAL[key] = data
+        while len(_SPECTRAL) > _SPECTRAL_KEPT:
+            _SPECTRAL.popitem(last=False)
+    return data
+
+
 def spectral_hypotheses(
     source: TriangleMesh,
     target: TriangleMesh,
@@ -243,13 +274,7 @@ def spectral_hypotheses(
     if k_ops > k_zoomout:
         raise ValueError(f"initial sizes must not exceed k_zoomout={k_zoomout}, got {k_ops}")
     key = ("spectral", kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors, source.content_hash, target.content_hash)
-    if cache is not None and key in cache:
-        s1, s2 = cache[key]
-    else:
-        s1 = _spectral_data(source, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors)
-        s2 = _spectral_data(target, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors)
-        if cache is not None:
-            cache[key] = (s1, s2)
+    s1, s2 = (_shape_spectral(mesh, kinds, k_ops, k_zoomout, n_descriptors, n_operator_descriptors) for mesh in (source, target))
     e1 = s1.basis_evecs[samples_1]
     e2 = s2.basis_evecs[samples_2]
     m2 = s2.mass[samples_2] * (s2.mass.sum() / s2.mass[samples_2].sum())
