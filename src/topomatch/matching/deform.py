@@ -258,10 +258,11 @@ def spectral_hypotheses(
     weights : FmapWeights, optional
         Default: ``FmapWeights(orientation=1.0)``.
     cache : dict, optional
-        Keeps each shape's eigenbasis, descriptors and operators and the initial
-        functional maps (none depends on the samples) for later calls on the same pair
-        with other samples, e.g. the sampling starts of :class:`DeformMatcher`
-        (``n_starts``).
+        Keeps the initial functional maps (they do not depend on the samples) for later
+        calls on the same pair with other samples, e.g. the sampling starts of
+        :class:`DeformMatcher` (``n_starts``). Each shape's eigenbasis, descriptors and
+        operators are kept by content in any case, for the last few shapes used
+        (:func:`_shape_spectral`).
 
     Yields
     ------
