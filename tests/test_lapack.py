@@ -55,3 +55,13 @@ def test_cholesky_solve_rejects_bad_input():
         cholesky_solve(np.eye(4), np.ones(5))
     with pytest.raises(ValueError, match="must be"):
         cholesky_solve(np.ones((4, 3)), np.ones(4))
+
+
+def test_cholesky_solve_falls_back_to_scipy_with_the_same_answers(monkeypatch):
+    import topomatch._lapack as lapack
+
+    H = _spd(40, 9)
+    b = np.random.default_rng(9).standard_normal((40, 2))
+    compiled = cholesky_solve(H.copy(), b)
+    monkeypatch.setattr(lapack, "_FACTOR_SOLVE", [None])  # as where SciPy's LAPACK table is not reachable
+    np.testing.assert_array_equal(lapack.cholesky_solve(H.copy(), b), compiled)

@@ -100,7 +100,7 @@ def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
         _FACTOR_SOLVE.append(_compiled())
     fn = _FACTOR_SOLVE[0]
     b = np.asarray(b, dtype=np.float64)
-    if fn is None:  # pragma: no cover - unusual SciPy builds
+    if fn is None:  # unusual SciPy builds
         return cho_solve(cho_factor(a, lower=False, overwrite_a=True, check_finite=False), b, check_finite=False)
     A = np.asfortranarray(a, dtype=np.float64)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or b.shape[:1] != A.shape[:1] or b.ndim not in (1, 2):
