@@ -16,11 +16,11 @@ from __future__ import annotations
 import argparse
 import os
 import threading
-import time
 from collections.abc import Callable
 
 import numpy as np
 import scipy.linalg
+from _common import median_seconds
 from threadpoolctl import threadpool_limits
 
 from topomatch._lapack import cholesky_solve
@@ -35,15 +35,6 @@ def _scipy_solve(H: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _ours(H: np.ndarray, b: np.ndarray) -> np.ndarray:
     return cholesky_solve(np.array(H, order="F"), b)
-
-
-def _timed(fn: Callable[[], object], repeat: int) -> float:
-    out = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return float(np.median(out))
 
 
 def _one_and_two(fn: Callable[[np.ndarray, np.ndarray], np.ndarray], H: np.ndarray, b: np.ndarray, count: int, repeat: int) -> tuple[float, float]:
@@ -61,8 +52,8 @@ def _one_and_two(fn: Callable[[np.ndarray, np.ndarray], np.ndarray], H: np.ndarr
             t.join()
 
     work()  # compile / warm up
-    one = _timed(work, repeat)
-    two = _timed(both, repeat)
+    one = median_seconds(work, repeat)[0]
+    two = median_seconds(both, repeat)[0]
     return 1e3 * one / count, 2 * one / two
 
 
