@@ -47,17 +47,29 @@ def farthest_point_sampling(
     if points is not None:
         cols = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
         n = cols.shape[1]
-        if not 1 <= n_samples <= n:
-            raise ValueError(f"n_samples must lie in [1, {n}], got {n_samples}")
         if not np.isfinite(cols).all():
             raise ValueError("farthest_point_sampling: points must be finite")
-        rng = check_random_state(random_state)
-        cur = int(rng.integers(n)) if first is None else int(first)
+    elif n_points is None:
+        raise ValueError("n_points is required with distance_fn")
+    else:
+        n = n_points
+    if not 1 <= n_samples <= n:
+        raise ValueError(f"n_samples must lie in [1, {n}], got {n_samples}")
+    rng = check_random_state(random_state)
+    cur = int(rng.integers(n)) if first is None else int(first)
+    out = np.empty(n_samples, dtype=np.int64)
+    if points is not None:
         if not 0 <= cur < n:
             raise ValueError(f"first must lie in [0, {n}), got {first}")
-        out = np.empty(n_samples, dtype=np.int64)
         farthest_points(cols, cur, out)  # compiled, one pass per sample, no temporaries
         return out
+    dmin = np.full(n, np.inf)
+    for k in range(n_samples):
+        out[k] = cur
+        dmin = np.minimum(dmin, distance_fn(cur))
+        dmin[out[: k + 1]] = -1.0
+        cur = int(np.argmax(dmin))
+    return out
     if n_points is None:
         raise ValueError("n_points is required with distance_fn")
     n = n_points
