@@ -271,6 +271,8 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
                         inc_i[j] = p
                     bound = min(bc_d, inc_d[k - 1])
                 continue
+            # the children pushed as in _knn, written out: a shared inlined helper made
+            # this search 28 % slower (0.31 -> 0.40 s on the queries of attempt #102)
             a = left[node]
             da = _box_d2_3(qx, qy, qz, bmin, bmax, a)
             db = _box_d2_3(qx, qy, qz, bmin, bmax, a + 1)
