@@ -16,6 +16,7 @@ Where the LAPACK entry points cannot be found (an unusual SciPy build),
 from __future__ import annotations
 
 import ctypes
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -44,8 +45,9 @@ def _lapack_address(name: str) -> int:
     return int(address)
 
 
+@functools.cache
 def _compiled() -> Callable[[FloatArray, FloatArray], int] | None:
-    """The compiled factorise-and-solve, or ``None`` when LAPACK's entry points are not reachable."""
+    """The compiled factorise-and-solve (compiled once per process, at the first solve), or ``None`` when LAPACK's entry points are not reachable."""
     try:
         import numba
 
@@ -72,9 +74,6 @@ def _compiled() -> Callable[[FloatArray, FloatArray], int] | None:
     return factor_solve  # type: ignore[no-any-return]
 
 
-_FACTOR_SOLVE: list[Callable[[FloatArray, FloatArray], int] | None] = []
-
-
 def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
     """Solve ``a x = b`` for a symmetric positive definite ``a`` from its upper triangle, without the GIL.
 
@@ -96,15 +95,13 @@ def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
     numpy.linalg.LinAlgError
         When ``a`` is not positive definite.
     """
-    if not _FACTOR_SOLVE:
-        _FACTOR_SOLVE.append(_compiled())
-    fn = _FACTOR_SOLVE[0]
-    b = np.asarray(b, dtype=np.float64)
-    if fn is None:  # unusual SciPy builds
-        return cho_solve(cho_factor(a, lower=False, overwrite_a=True, check_finite=False), b, check_finite=False)
     A = np.asfortranarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or b.shape[:1] != A.shape[:1] or b.ndim not in (1, 2):
         raise ValueError(f"cholesky_solve: a must be (n, n) and b (n,) or (n, r), got {A.shape} and {b.shape}")
+    fn = _compiled()
+    if fn is None:  # unusual SciPy builds
+        return cho_solve(cho_factor(A, lower=False, overwrite_a=True, check_finite=False), b, check_finite=False)
     B = np.array(b.reshape(len(b), -1), dtype=np.float64, order="F")
     info = fn(A, B)
     if info > 0:
