@@ -1,0 +1,88 @@
+"""Repairing left-right exchanges of a map onto a symmetric shape (``flip_mirror_patches``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from topomatch.maps.symmetry import flip_mirror_patches
+
+
+def _grid(nx: int = 40, ny: int = 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A flat grid over x in [-1, 1], y in [0, 1], mirror-symmetric about x = 0; (vertices, faces, sym)."""
+    xs = np.linspace(-1.0, 1.0, nx)
+    ys = np.linspace(0.0, 1.0, ny)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    V = np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)]
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    sym = idx[::-1, :].ravel()  # (i, j) -> (nx - 1 - i, j)
+    return V, F, sym
+
+
+def test_a_small_mirrored_patch_is_mirrored_back():
+    V, F, sym = _grid()
+    truth = np.arange(len(V))
+    patch = np.flatnonzero(np.hypot(V[:, 0] - 0.6, V[:, 1] - 0.5) < 0.15)
+    p2p = truth.copy()
+    p2p[patch] = sym[patch]  # those vertices mapped onto the other side
+    out, n = flip_mirror_patches(p2p, F, V, F, sym)
+    np.testing.assert_array_equal(out, truth)
+    assert n == len(patch) > 3
+    # the input is not modified; a correct map is left alone
+    assert (p2p[patch] != truth[patch]).all()
+    same, n0 = flip_mirror_patches(truth, F, V, F, sym)
+    np.testing.assert_array_equal(same, truth)
+    assert n0 == 0
+
+
+def test_large_patches_whole_mirror_images_and_vertices_without_mirror_are_kept():
+    V, F, sym = _grid()
+    truth = np.arange(len(V))
+    # the whole map mirrored is one continuous patch: a symmetric solution, kept
+    out, n = flip_mirror_patches(sym.copy(), F, V, F, sym)
+    np.testing.assert_array_equal(out, sym)
+    assert n == 0
+    # a patch above max_fraction of the vertices is kept
+    big = np.flatnonzero(V[:, 0] > 0.3)
+    p2p = truth.copy()
+    p2p[big] = sym[big]
+    assert len(big) > 0.05 * len(V)
+    assert flip_mirror_patches(p2p, F, V, F, sym)[1] == 0
+    assert flip_mirror_patches(p2p, F, V, F, sym, max_fraction=0.5)[1] == len(big)
+    # a patch whose image has a vertex without a mirror is kept
+    patch = np.flatnonzero(np.hypot(V[:, 0] - 0.6, V[:, 1] - 0.5) < 0.15)
+    p2p = truth.copy()
+    p2p[patch] = sym[patch]
+    no_mirror = sym.copy()
+    no_mirror[p2p[patch[0]]] = -1
+    assert flip_mirror_patches(p2p, F, V, F, no_mirror)[1] == 0
+    # unmatched vertices stay unmatched
+    p2p[patch[:2]] = -1
+    out, n = flip_mirror_patches(p2p, F, V, F, sym)
+    assert (out[patch[:2]] == -1).all() and n == len(patch) - 2
+    np.testing.assert_array_equal(out[patch[2:]], truth[patch[2:]])
+
+
+def test_flip_mirror_patches_errors():
+    V, F, sym = _grid(6, 4)
+    p2p = np.arange(len(V))
+    with pytest.raises(ValueError, match="1-D integer"):
+        flip_mirror_patches(p2p.astype(float), F, V, F, sym)
+    with pytest.raises(ValueError, match="outside"):
+        flip_mirror_patches(p2p + 1, F, V, F, sym)
+    with pytest.raises(ValueError, match="sym_1"):
+        flip_mirror_patches(p2p, F, V, F, sym[:-1])
+    with pytest.raises(ValueError, match="faces_2"):
+        flip_mirror_patches(p2p[:-3], F, V, F, sym)
+    with pytest.raises(ValueError, match="faces_1"):
+        flip_mirror_patches(p2p, F, V, np.r_[F, [[0, 1, len(V)]]], sym)
+    with pytest.raises(ValueError, match="vertices_1"):
+        flip_mirror_patches(p2p, F, V[:, :2], F, sym)
+    with pytest.raises(ValueError, match="zero area"):
+        flip_mirror_patches(p2p, F, np.zeros_like(V), F, sym)
+    with pytest.raises(ValueError, match="jump"):
+        flip_mirror_patches(p2p, F, V, F, sym, jump=0.0)
+    with pytest.raises(ValueError, match="sweeps"):
+        flip_mirror_patches(p2p, F, V, F, sym, sweeps=1.5)
