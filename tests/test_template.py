@@ -9,6 +9,8 @@ import pytest
 from scipy import sparse
 
 from topomatch.datasets.base import Shape
+from topomatch.io import write_sym
+from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, WORKING_SIZES, map_from_deformed
 from topomatch.matching.template import (
@@ -95,7 +97,14 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
     params = {**ACCURATE, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS}
     deformed, _ = make_matcher("deform", **params).register(src, tgt, poses=_poses_for(fitted, tgt))
-    np.testing.assert_array_equal(c.p2p_21, map_from_deformed(tgt, deformed, src.faces))
+    plain = map_from_deformed(tgt, deformed, src.faces)
+    # the map to the template with its mirrored patches repaired (the template's symmetry map from the null shape)
+    fixed, n_flipped = flip_mirror_patches(plain, tgt.faces, src.vertices, src.faces, builtin["syn00"].sym)
+    np.testing.assert_array_equal(c.p2p_21, fixed)
+    assert c.info["mirror_patches"] == {"target": n_flipped}
+    off = copy.copy(fitted).set_params(mirror_patches=False).match(src, tgt)
+    np.testing.assert_array_equal(off.p2p_21, plain)
+    assert off.info["mirror_patches"] == {}
     # two sampling starts and the template in the best-fitting training pose, the best kept
     assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [3]
     runs = c.info["runs"]["target"]["runs"]
@@ -132,7 +141,7 @@ def test_template_composes_the_two_registrations(fitted, builtin):
     template = builtin["syn00"].mesh
     d_t, _ = deform.register(template, t.mesh, poses=_poses_for(fitted, t.mesh))
     d_s, _ = deform.register(template, s.mesh, poses=_poses_for(fitted, s.mesh))
-    t2m = map_from_deformed(t.mesh, d_t, template.faces)
+    t2m = flip_mirror_patches(map_from_deformed(t.mesh, d_t, template.faces), t.mesh.faces, template.vertices, template.faces, fitted.template_sym_)[0]
     m2s = map_from_deformed(TriangleMesh(d_s, template.faces), s.mesh.vertices, s.mesh.faces)
     np.testing.assert_array_equal(c.p2p_21, m2s[t2m])
     # and it is a good map: most target vertices land near their true source vertex
@@ -148,6 +157,15 @@ def test_template_model_file_round_trip(tmp_path, fitted, builtin):
     m = make_matcher("template", model=str(path), deform=FAST).fit([])
     np.testing.assert_allclose(m.template_.vertices, builtin["syn00"].mesh.vertices, rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(m.template_.faces, builtin["syn00"].mesh.faces)
+    # a model file carries no symmetry map: the mirror-patch repair is skipped unless one is given
+    assert m.template_sym_ is None
+    write_sym(tmp_path / "tmpl_sym.txt", builtin["syn00"].sym)
+    m = make_matcher("template", model=str(path), symmetry=str(tmp_path / "tmpl_sym.txt"), deform=FAST).fit([])
+    np.testing.assert_array_equal(m.template_sym_, builtin["syn00"].sym)
+    with pytest.raises(FileNotFoundError, match="symmetry map not found"):
+        make_matcher("template", model=str(path), symmetry=str(tmp_path / "none.txt")).fit([])
+    with pytest.raises(ValueError, match="mirror_patches"):
+        make_matcher("template", model=str(path), mirror_patches="yes").fit([])
 
 
 def test_pose_from_ground_truth_moves_the_template_into_the_shape_s_pose(builtin):

@@ -220,8 +220,8 @@ class TemplateMatcher(Matcher):
         on kid00): 1.737 -> 1.632 (kid14 3.84 -> 2.59, kid13 3.31 -> 3.01; no map worse),
         attempt #109 in ``docs/flagship.md``.
     symmetry : str, optional
-        Path of the template's left-right symmetry map (a TOPKIDS ``_sym`` file: one
-        mirror vertex per line) for a ``model`` template.
+        Path of the template's left-right symmetry map (a TOPKIDS ``_sym`` file, one or
+        two columns, :func:`~topomatch.io.read_sym`), for a ``model`` template.
 
     Notes
     -----
