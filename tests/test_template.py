@@ -9,7 +9,6 @@ import pytest
 from scipy import sparse
 
 from topomatch.datasets.base import Shape
-from topomatch.io import write_sym
 from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, WORKING_SIZES, map_from_deformed
@@ -157,10 +156,13 @@ def test_template_model_file_round_trip(tmp_path, fitted, builtin):
     m = make_matcher("template", model=str(path), deform=FAST).fit([])
     np.testing.assert_allclose(m.template_.vertices, builtin["syn00"].mesh.vertices, rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(m.template_.faces, builtin["syn00"].mesh.faces)
-    # a model file carries no symmetry map: the mirror-patch repair is skipped unless one is given
-    assert m.template_sym_ is None
-    write_sym(tmp_path / "tmpl_sym.txt", builtin["syn00"].sym)
-    m = make_matcher("template", model=str(path), symmetry=str(tmp_path / "tmpl_sym.txt"), deform=FAST).fit([])
+    # the symmetry map goes beside the mesh and comes back with it
+    assert (tmp_path / "tmpl_sym.txt").is_file()
+    np.testing.assert_array_equal(m.template_sym_, builtin["syn00"].sym)
+    # without it the mirror-patch repair is skipped unless a file is given
+    (tmp_path / "tmpl_sym.txt").rename(tmp_path / "other_sym.txt")
+    assert make_matcher("template", model=str(path), deform=FAST).fit([]).template_sym_ is None
+    m = make_matcher("template", model=str(path), symmetry=str(tmp_path / "other_sym.txt"), deform=FAST).fit([])
     np.testing.assert_array_equal(m.template_sym_, builtin["syn00"].sym)
     with pytest.raises(FileNotFoundError, match="symmetry map not found"):
         make_matcher("template", model=str(path), symmetry=str(tmp_path / "none.txt")).fit([])

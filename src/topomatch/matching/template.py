@@ -35,7 +35,7 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from topomatch.datasets.base import Shape
-from topomatch.io import read_sym, write_mesh
+from topomatch.io import read_sym, write_mesh, write_sym
 from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.matching._spectral import find_reference
 from topomatch.matching.base import Correspondence, Matcher, NotFittedError
@@ -61,6 +61,11 @@ POSE_SOURCES = 1
 #: registrations' full-mesh scores. Training pairs (leave-one-out, Dijkstra x100): all three
 #: 2.0367, two 2.0366 (14 of 15 maps identical), one 2.31 (attempt #97 in ``docs/flagship.md``).
 REFINED_RUNS = 2
+
+
+def _sym_path(mesh_path: Path) -> Path:
+    """Where a template's symmetry map lives beside its mesh: ``<stem>_sym.txt`` (TOPKIDS' ``kid00_sym.txt``)."""
+    return mesh_path.with_name(mesh_path.stem + "_sym.txt")
 
 
 def compose_through_template(target_to_template: IndexArray, template_to_source: IndexArray) -> IndexArray:
@@ -215,8 +220,9 @@ class TemplateMatcher(Matcher):
         shape mapped onto the template's other hand (or foot), which joins its
         surroundings only once mirrored, is sent to its mirror image. Needs the
         template's symmetry map: the null shape's ``sym`` when ``fit`` takes the
-        template from the collection, else the file given as ``symmetry``; without
-        one the step is skipped. Training pairs kid00 -> kid01..kid15 (Euclidean x100
+        template from the collection, else the file given as ``symmetry``, else
+        ``<stem>_sym.txt`` beside the ``model`` file (as TOPKIDS' ``kid00_sym.txt``,
+        and as :meth:`save_model` writes it); without one the step is skipped. Training pairs kid00 -> kid01..kid15 (Euclidean x100
         on kid00): 1.737 -> 1.632 (kid14 3.84 -> 2.59, kid13 3.31 -> 3.01; no map worse),
         attempt #109 in ``docs/flagship.md``.
     symmetry : str, optional
@@ -319,6 +325,8 @@ class TemplateMatcher(Matcher):
             ref = find_reference(shapes)
             if ref is not None and ref.sym is not None and ref.mesh.content_hash == self.template_.content_hash:
                 self.template_sym_ = ref.sym
+            elif self.symmetry is None and _sym_path(path).is_file():
+                self.template_sym_ = read_sym(_sym_path(path), self.template_.n_vertices)
         else:
             ref = find_reference(shapes)
             if ref is None:
@@ -349,7 +357,11 @@ class TemplateMatcher(Matcher):
         return self
 
     def save_model(self, path: PathType) -> Path:
-        """Write the template mesh to ``path`` (an OFF file unless the suffix says otherwise)."""
+        """Write the template mesh to ``path`` (an OFF file unless the suffix says otherwise).
+
+        The template's symmetry map, when it has one, goes beside it as ``<stem>_sym.txt``
+        (the TOPKIDS naming), where ``fit`` with ``model`` finds it again.
+        """
         if not hasattr(self, "template_"):
             raise NotFittedError("template: fit before save_model")
         path = Path(path)
@@ -357,6 +369,9 @@ class TemplateMatcher(Matcher):
             path = path.with_suffix(path.suffix + ".off")
         path.parent.mkdir(parents=True, exist_ok=True)
         write_mesh(path, self.template_.vertices, self.template_.faces)
+        sym = getattr(self, "template_sym_", None)
+        if sym is not None:
+            write_sym(_sym_path(path), sym)
         return path
 
     def _is_template(self, mesh: TriangleMesh) -> bool:
