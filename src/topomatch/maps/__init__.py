@@ -12,6 +12,7 @@ from topomatch.maps.fmap import (
 )
 from topomatch.maps.knn import nearest_neighbors
 from topomatch.maps.operations import compose_p2p, coverage, invert_p2p, transfer_function
+from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.maps.zoomout import zoomout, zoomout_schedule
 
 __all__ = [
@@ -20,6 +21,7 @@ __all__ = [
     "coverage",
     "descriptor_coefficients",
     "estimate_fmap",
+    "flip_mirror_patches",
     "fmap_from_p2p",
     "invert_p2p",
     "multiplication_operators",
