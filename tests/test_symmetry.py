@@ -1,10 +1,11 @@
-"""Repairing left-right exchanges of a map onto a symmetric shape (``flip_mirror_patches``)."""
+"""Repairing a map's patches: left-right exchanges (``flip_mirror_patches``) and small islands (``fill_small_patches``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from topomatch.maps.patches import fill_small_patches
 from topomatch.maps.symmetry import flip_mirror_patches
 
 
@@ -86,3 +87,31 @@ def test_flip_mirror_patches_errors():
         flip_mirror_patches(p2p, F, V, F, sym, jump=0.0)
     with pytest.raises(ValueError, match="sweeps"):
         flip_mirror_patches(p2p, F, V, F, sym, sweeps=1.5)
+
+
+def test_a_small_island_takes_the_image_of_the_nearest_large_patch():
+    V, F, sym = _grid()
+    truth = np.arange(len(V))
+    island = np.flatnonzero(np.hypot(V[:, 0] - 0.6, V[:, 1] - 0.5) < 0.1)
+    p2p = truth.copy()
+    p2p[island] = np.argmin(np.hypot(V[:, 0] + 0.05, V[:, 1] - 0.95))  # all sent to one far vertex near the plane
+    out, n = flip_mirror_patches(p2p, F, V, F, sym)
+    assert n == 0  # not a mirror image: left to the filling
+    out, n = fill_small_patches(p2p, V, F, V, F)
+    assert n == len(island) > 3
+    # each island vertex now maps to the image of its nearest outside vertex: next to its own truth
+    assert np.all(np.linalg.norm(V[out[island]] - V[island], axis=1) < 0.1 + 0.06)  # the island radius and a grid step
+    np.testing.assert_array_equal(np.delete(out, island), np.delete(truth, island))
+    # a correct map, a map without any large piece, and unmatched vertices are left alone
+    assert fill_small_patches(truth, V, F, V, F)[1] == 0
+    noisy = np.random.default_rng(0).permutation(len(V))
+    np.testing.assert_array_equal(fill_small_patches(noisy, V, F, V, F)[0], noisy)
+    p2p[island[:2]] = -1
+    out, n = fill_small_patches(p2p, V, F, V, F)
+    assert (out[island[:2]] == -1).all() and n == len(island) - 2
+    with pytest.raises(ValueError, match="vertices_2"):
+        fill_small_patches(p2p, V[:-1], F, V, F)
+    with pytest.raises(ValueError, match="jump"):
+        fill_small_patches(p2p, V, F, V, F, jump=-1.0)
+    with pytest.raises(ValueError, match="faces_2"):
+        fill_small_patches(p2p[:-5], V[:-5], F, V, F)

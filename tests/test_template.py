@@ -9,6 +9,7 @@ import pytest
 from scipy import sparse
 
 from topomatch.datasets.base import Shape
+from topomatch.maps.patches import fill_small_patches
 from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, WORKING_SIZES, map_from_deformed
@@ -99,11 +100,13 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     plain = map_from_deformed(tgt, deformed, src.faces)
     # the map to the template with its mirrored patches repaired (the template's symmetry map from the null shape)
     fixed, n_flipped = flip_mirror_patches(plain, tgt.faces, src.vertices, src.faces, builtin["syn00"].sym)
-    np.testing.assert_array_equal(c.p2p_21, fixed)
-    assert c.info["mirror_patches"] == {"target": n_flipped}
-    off = copy.copy(fitted).set_params(mirror_patches=False).match(src, tgt)
+    # then the small islands filled from the large pieces
+    filled, n_filled = fill_small_patches(fixed, tgt.vertices, tgt.faces, src.vertices, src.faces)
+    np.testing.assert_array_equal(c.p2p_21, filled)
+    assert c.info["repaired"] == {"target": {"mirrored": n_flipped, "filled": n_filled}}
+    off = copy.copy(fitted).set_params(mirror_patches=False, fill_patches=False).match(src, tgt)
     np.testing.assert_array_equal(off.p2p_21, plain)
-    assert off.info["mirror_patches"] == {}
+    assert off.info["repaired"] == {"target": {}}
     # two sampling starts and the template in the best-fitting training pose, the best kept
     assert [len(info["runs"]) for _, info in fitted.registrations_.values()] == [3]
     runs = c.info["runs"]["target"]["runs"]
@@ -141,6 +144,7 @@ def test_template_composes_the_two_registrations(fitted, builtin):
     d_t, _ = deform.register(template, t.mesh, poses=_poses_for(fitted, t.mesh))
     d_s, _ = deform.register(template, s.mesh, poses=_poses_for(fitted, s.mesh))
     t2m = flip_mirror_patches(map_from_deformed(t.mesh, d_t, template.faces), t.mesh.faces, template.vertices, template.faces, fitted.template_sym_)[0]
+    t2m = fill_small_patches(t2m, t.mesh.vertices, t.mesh.faces, template.vertices, template.faces)[0]
     m2s = map_from_deformed(TriangleMesh(d_s, template.faces), s.mesh.vertices, s.mesh.faces)
     np.testing.assert_array_equal(c.p2p_21, m2s[t2m])
     # and it is a good map: most target vertices land near their true source vertex
@@ -168,6 +172,8 @@ def test_template_model_file_round_trip(tmp_path, fitted, builtin):
         make_matcher("template", model=str(path), symmetry=str(tmp_path / "none.txt")).fit([])
     with pytest.raises(ValueError, match="mirror_patches"):
         make_matcher("template", model=str(path), mirror_patches="yes").fit([])
+    with pytest.raises(ValueError, match="fill_patches"):
+        make_matcher("template", model=str(path), fill_patches=1).fit([])
 
 
 def test_pose_from_ground_truth_moves_the_template_into_the_shape_s_pose(builtin):

@@ -12,19 +12,11 @@ template's symmetry map, no ground truth. Attempt #109 in ``docs/flagship.md``.
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse.csgraph import connected_components
 
+from topomatch.maps.patches import _checked, _edges, _patches
 from topomatch.typing import FloatArray, IndexArray
 
 __all__ = ["flip_mirror_patches"]
-
-
-def _edges(faces: IndexArray, n_vertices: int) -> tuple[IndexArray, IndexArray]:
-    E = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    E = np.unique(np.sort(E, axis=1), axis=0)
-    E = E[E[:, 0] != E[:, 1]]
-    return E[:, 0], E[:, 1]
 
 
 def flip_mirror_patches(
@@ -76,43 +68,22 @@ def flip_mirror_patches(
     n_flipped : int
         Vertices whose image was mirrored (counted once per flip).
     """
-    p2p = np.asarray(p2p_21)
-    faces = np.asarray(faces_2)
-    V = np.asarray(vertices_1, dtype=np.float64)
+    name = "flip_mirror_patches"
+    out, faces, V = _checked(p2p_21, faces_2, vertices_1, faces_1, name)
     sym = np.asarray(sym_1)
-    if p2p.ndim != 1 or not np.issubdtype(p2p.dtype, np.integer):
-        raise ValueError(f"flip_mirror_patches: p2p_21 must be a 1-D integer array, got {p2p.dtype} of shape {p2p.shape}")
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"flip_mirror_patches: vertices_1 must have shape (n1, 3), got {V.shape}")
-    n1, n2 = len(V), len(p2p)
+    n1, n2 = len(V), len(out)
     if sym.shape != (n1,) or not np.issubdtype(sym.dtype, np.integer) or (n1 and (sym.min() < -1 or sym.max() >= n1)):
-        raise ValueError(f"flip_mirror_patches: sym_1 must hold one index in [-1, {n1 - 1}] per vertex of shape 1 ({n1})")
-    if n2 and (p2p.min() < -1 or p2p.max() >= n1):
-        raise ValueError(f"flip_mirror_patches: p2p_21 has indices outside [-1, {n1 - 1}]")
-    if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer) or (faces.size and (faces.min() < 0 or faces.max() >= n2)):
-        raise ValueError(f"flip_mirror_patches: faces_2 must be (f2, 3) indices into the map's {n2} vertices")
+        raise ValueError(f"{name}: sym_1 must hold one index in [-1, {n1 - 1}] per vertex of shape 1 ({n1})")
     if not (jump > 0 and 0 <= max_fraction <= 1 and ratio > 0) or isinstance(sweeps, bool) or int(sweeps) != sweeps or sweeps < 0:
-        raise ValueError(f"flip_mirror_patches: need jump > 0, 0 <= max_fraction <= 1, ratio > 0 and an integer sweeps >= 0; got {jump}, {max_fraction}, {ratio}, {sweeps}")
-    F1 = np.asarray(faces_1)
-    if F1.ndim != 2 or F1.shape[1] != 3 or not np.issubdtype(F1.dtype, np.integer) or (F1.size and (F1.min() < 0 or F1.max() >= n1)):
-        raise ValueError(f"flip_mirror_patches: faces_1 must be (f1, 3) indices into shape 1's {n1} vertices")
-    out = p2p.astype(np.int64, copy=True)
+        raise ValueError(f"{name}: need jump > 0, 0 <= max_fraction <= 1, ratio > 0 and an integer sweeps >= 0; got {jump}, {max_fraction}, {ratio}, {sweeps}")
     if n2 == 0 or len(faces) == 0 or n1 == 0:
         return out, 0
-    scale = np.sqrt(0.5 * np.linalg.norm(np.cross(V[F1[:, 1]] - V[F1[:, 0]], V[F1[:, 2]] - V[F1[:, 0]]), axis=1).sum())
-    if not scale > 0:
-        raise ValueError("flip_mirror_patches: shape 1 has zero area")
-    V = V / scale
-    a, b = _edges(faces, n2)
+    a, b = _edges(faces)
     n_flipped = 0
     for _ in range(int(sweeps)):
         live = (out[a] >= 0) & (out[b] >= 0)
-        d = np.full(len(a), np.inf)
-        d[live] = np.linalg.norm(V[out[a[live]]] - V[out[b[live]]], axis=1)
-        keep = d <= jump
-        G = sparse.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n2, n2))
-        k, label = connected_components(G, directed=False)
-        sizes = np.bincount(label, minlength=k)
+        label, sizes, keep = _patches(out, a, b, V, jump)
+        k = len(sizes)
         # the rim: cut edges between two patches, once from each side
         rim = ~keep & live & (label[a] != label[b])
         inner = np.r_[a[rim], b[rim]]
