@@ -70,18 +70,3 @@ def farthest_point_sampling(
         dmin[out[: k + 1]] = -1.0
         cur = int(np.argmax(dmin))
     return out
-    if n_points is None:
-        raise ValueError("n_points is required with distance_fn")
-    n = n_points
-    if not 1 <= n_samples <= n:
-        raise ValueError(f"n_samples must lie in [1, {n}], got {n_samples}")
-    rng = check_random_state(random_state)
-    cur = int(rng.integers(n)) if first is None else int(first)
-    out = np.empty(n_samples, dtype=np.int64)
-    dmin = np.full(n, np.inf)
-    for k in range(n_samples):
-        out[k] = cur
-        dmin = np.minimum(dmin, distance_fn(cur))
-        dmin[out[: k + 1]] = -1.0
-        cur = int(np.argmax(dmin))
-    return out
