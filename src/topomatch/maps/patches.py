@@ -14,17 +14,10 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 
+from topomatch.mesh.geometry import edges_with_counts
 from topomatch.typing import FloatArray, IndexArray
 
 __all__ = ["fill_small_patches"]
-
-
-def _edges(faces: IndexArray) -> tuple[IndexArray, IndexArray]:
-    """The unique undirected edges of a triangle list, as two index arrays."""
-    E = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    E = np.unique(np.sort(E, axis=1), axis=0)
-    E = E[E[:, 0] != E[:, 1]]
-    return E[:, 0], E[:, 1]
 
 
 def _patches(p2p: IndexArray, a: IndexArray, b: IndexArray, V: FloatArray, jump: float) -> tuple[IndexArray, IndexArray, np.ndarray]:
@@ -112,11 +105,12 @@ def fill_small_patches(
         raise ValueError(f"{name}: need jump > 0 and 0 <= max_fraction <= 1, got {jump}, {max_fraction}")
     if n2 == 0 or len(faces) == 0 or len(V) == 0:
         return p2p, 0
-    a, b = _edges(faces)
+    a, b = edges_with_counts(faces)[0].T
     label, sizes, _ = _patches(p2p, a, b, V, jump)
     mapped = p2p >= 0
-    small = (sizes <= max_fraction * n2)[label] & mapped
-    large = ~(sizes <= max_fraction * n2)[label] & mapped
+    in_small = (sizes <= max_fraction * n2)[label]
+    small = in_small & mapped
+    large = ~in_small & mapped
     if not small.any() or not large.any():
         return p2p, 0
     L = np.linalg.norm(X[a] - X[b], axis=1)

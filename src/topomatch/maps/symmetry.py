@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from topomatch.maps.patches import _checked, _edges, _patches
+from topomatch.maps.patches import _checked, _patches
+from topomatch.mesh.geometry import edges_with_counts
 from topomatch.typing import FloatArray, IndexArray
 
 __all__ = ["flip_mirror_patches"]
@@ -78,7 +79,7 @@ def flip_mirror_patches(
         raise ValueError(f"{name}: need jump > 0, 0 <= max_fraction <= 1, ratio > 0 and an integer sweeps >= 0; got {jump}, {max_fraction}, {ratio}, {sweeps}")
     if n2 == 0 or len(faces) == 0 or n1 == 0:
         return out, 0
-    a, b = _edges(faces)
+    a, b = edges_with_counts(faces)[0].T
     n_flipped = 0
     for _ in range(int(sweeps)):
         live = (out[a] >= 0) & (out[b] >= 0)
