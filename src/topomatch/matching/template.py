@@ -325,35 +325,26 @@ class TemplateMatcher(Matcher):
         self
         """
         self._deformer()
+        ref = find_reference(shapes)
         if self.model is not None:
             path = Path(self.model)
             if not path.is_file():
                 raise FileNotFoundError(f"template mesh not found: {path}")
             self.template_ = TriangleMesh.from_file(path)
             self.template_name_ = path.stem
-            self.template_sym_: IndexArray | None = None
-            ref = find_reference(shapes)
-            if ref is not None and ref.sym is not None and ref.mesh.content_hash == self.template_.content_hash:
-                self.template_sym_ = ref.sym
-            elif self.symmetry is None and _sym_path(path).is_file():
-                self.template_sym_ = read_sym(_sym_path(path), self.template_.n_vertices)
+        elif ref is None:
+            raise ValueError("template: no template mesh given (--param template.model=PATH) and no null shape among the fit shapes")
         else:
-            ref = find_reference(shapes)
-            if ref is None:
-                raise ValueError("template: no template mesh given (--param template.model=PATH) and no null shape among the fit shapes")
             self.template_ = ref.mesh
             self.template_name_ = ref.name
-            self.template_sym_ = ref.sym
-        if self.symmetry is not None:
-            sym_path = Path(self.symmetry)
-            if not sym_path.is_file():
-                raise FileNotFoundError(f"template symmetry map not found: {sym_path}")
-            self.template_sym_ = read_sym(sym_path, self.template_.n_vertices)
+        # the collection's null shape, when the template is it
+        if ref is not None and ref.mesh.content_hash != self.template_.content_hash:
+            ref = None
+        self.template_sym_ = self._template_symmetry(None if ref is None else ref.sym)
         self.training_shapes_ = [self.template_name_]
         # (name, content hash of the shape, the template's vertices in its pose)
         self.poses_: list[tuple[str, str, FloatArray]] = []
-        ref = find_reference(shapes) if self.poses else None
-        if ref is not None and ref.mesh.content_hash == self.template_.content_hash:
+        if self.poses and ref is not None:
             if self.mirror_poses and ref.sym is None:
                 raise ValueError(f"template: mirror_poses needs the left-right symmetry map of {ref.name}")
             for s in shapes:
@@ -365,6 +356,19 @@ class TemplateMatcher(Matcher):
             self.training_shapes_ += [name for name, _, _ in self.poses_ if not name.endswith(" mirrored")]
         self.registrations_: dict[str, tuple[FloatArray, dict[str, Any]]] = {}
         return self
+
+    def _template_symmetry(self, reference_sym: IndexArray | None) -> IndexArray | None:
+        """The template's symmetry map: the ``symmetry`` file, else the null shape's, else ``<stem>_sym.txt`` beside ``model``."""
+        if self.symmetry is not None:
+            path = Path(self.symmetry)
+            if not path.is_file():
+                raise FileNotFoundError(f"template symmetry map not found: {path}")
+            return read_sym(path, self.template_.n_vertices)
+        if reference_sym is not None:
+            return reference_sym
+        if self.model is not None and _sym_path(Path(self.model)).is_file():
+            return read_sym(_sym_path(Path(self.model)), self.template_.n_vertices)
+        return None
 
     def save_model(self, path: PathType) -> Path:
         """Write the template mesh to ``path`` (an OFF file unless the suffix says otherwise).
