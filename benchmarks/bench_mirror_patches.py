@@ -7,7 +7,8 @@ then sent to the mirror side (``--patches`` discs of ``--radius`` sqrt(area) on 
 from the symmetry plane, about the size of the exchanges the repair finds on kid13 and
 kid14) and the repairs are run on the damaged map, as ``template`` runs them (the mirror repair, then the
 filling of small islands on its output). Printed per target: vertex count, milliseconds of
-the read-off and of each repair (median of ``--repeat``), the two repairs' ratio to the
+the read-off and of each repair (median of ``--repeat``), the filling also without its
+duplicate test (``duplicate=0``, attempt #112) and the test's cost as a ratio to that, the two repairs' ratio to the
 read-off, and how many of the damaged vertices the mirror repair restored. A damaged patch that touches the part it was
 mirrored onto (where the target's hands or a hand and a leg are fused) joins the rest of
 the map through the contact and is not restored: the limit attempt #109 describes for
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from functools import partial
 
 import numpy as np
 from _common import median_seconds
@@ -67,7 +69,7 @@ def main() -> None:
         ap.error(f"{ref.name} has no symmetry map")
     template, sym = ref.mesh, ref.sym
     rng = np.random.default_rng(0)
-    print(f"{'target':>8} {'vertices':>9} {'read-off ms':>12} {'mirror ms':>10} {'fill ms':>8} {'ratio':>6} {'restored':>14}")
+    print(f"{'target':>8} {'vertices':>9} {'read-off ms':>12} {'mirror ms':>10} {'fill ms':>8} {'no-dup ms':>10} {'dup x':>6} {'ratio':>6} {'restored':>14}")
     for name in targets:
         shape = coll[name]
         posed = pose_from_ground_truth(template, shape)
@@ -75,10 +77,11 @@ def main() -> None:
         damaged = _damage(p2p, shape.mesh, template, sym, args.patches, args.radius, rng)
         t_fix, (fixed, _) = median_seconds(flip_mirror_patches, args.repeat, damaged, shape.mesh.faces, template.vertices, template.faces, sym)
         t_fill, _ = median_seconds(fill_small_patches, args.repeat, fixed, shape.mesh.vertices, shape.mesh.faces, template.vertices, template.faces)
+        t_all, _ = median_seconds(partial(fill_small_patches, duplicate=0.0), args.repeat, fixed, shape.mesh.vertices, shape.mesh.faces, template.vertices, template.faces)
         hit = damaged != p2p
         restored = int(np.sum(fixed[hit] == p2p[hit]))
         ratio = (t_fix + t_fill) / t_read
-        print(f"{name:>8} {shape.mesh.n_vertices:>9} {1e3 * t_read:>12.1f} {1e3 * t_fix:>10.1f} {1e3 * t_fill:>8.1f} {ratio:>6.2f} {restored:>6} / {int(hit.sum()):<6}")
+        print(f"{name:>8} {shape.mesh.n_vertices:>9} {1e3 * t_read:>12.1f} {1e3 * t_fix:>10.1f} {1e3 * t_fill:>8.1f} {1e3 * t_all:>10.1f} {t_fill / t_all:>6.2f} {ratio:>6.2f} {restored:>6} / {int(hit.sum()):<6}")
 
 
 if __name__ == "__main__":

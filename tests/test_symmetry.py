@@ -113,5 +113,25 @@ def test_a_small_island_takes_the_image_of_the_nearest_large_patch():
         fill_small_patches(p2p, V[:-1], F, V, F)
     with pytest.raises(ValueError, match="jump"):
         fill_small_patches(p2p, V, F, V, F, jump=-1.0)
+    with pytest.raises(ValueError, match="duplicate"):
+        fill_small_patches(p2p, V, F, V, F, duplicate=1.5)
     with pytest.raises(ValueError, match="faces_2"):
         fill_small_patches(p2p[:-5], V[:-5], F, V, F)
+
+
+def test_a_correct_piece_cut_off_by_wrong_surroundings_is_kept():
+    # a disc mapped right, inside a ring mapped to one far vertex: both are small pieces, but only
+    # the ring is a second copy of a region the rest already covers; the disc is its region's only cover
+    V, F, _ = _grid(80, 40)
+    truth = np.arange(len(V))
+    r = np.hypot(V[:, 0] - 0.5, V[:, 1] - 0.5)
+    disc, ring = np.flatnonzero(r < 0.08), np.flatnonzero((r >= 0.08) & (r < 0.17))
+    p2p = truth.copy()
+    p2p[ring] = np.argmin(np.hypot(V[:, 0] + 0.5, V[:, 1] - 0.9))
+    out, n = fill_small_patches(p2p, V, F, V, F)
+    np.testing.assert_array_equal(out[disc], truth[disc])
+    assert n == len(ring)
+    assert np.all(np.linalg.norm(V[out[ring]] - V[ring], axis=1) < 0.1 + 0.05)  # the ring's width and a grid step
+    # without the duplicate test the disc takes the images of the outside too
+    out0, n0 = fill_small_patches(p2p, V, F, V, F, duplicate=0.0)
+    assert n0 == len(ring) + len(disc) and (out0[disc] != truth[disc]).all()

@@ -4,7 +4,8 @@ A map read off a registration is continuous almost everywhere; where the registr
 wrong it jumps. Cutting the shape's edges whose two ends map far apart leaves its
 continuous patches: one or a few large ones, and small islands mapped somewhere else
 entirely. :func:`fill_small_patches` gives each vertex of a small island the image of the
-nearest vertex (along the shape's edges) of a large patch. Attempt #111 in
+nearest vertex (along the shape's edges) of a large patch, when the island is a second
+copy of a region the large patches already cover. Attempts #111 and #112 in
 ``docs/flagship.md``.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 
 from topomatch.mesh.geometry import edges_with_counts
 from topomatch.typing import FloatArray, IndexArray
@@ -29,6 +31,24 @@ def _patches(p2p: IndexArray, a: IndexArray, b: IndexArray, V: FloatArray, jump:
     G = sparse.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n, n))
     k, label = connected_components(G, directed=False)
     return label, np.bincount(label, minlength=k), keep
+
+
+def _duplicates(p2p: IndexArray, label: IndexArray, small: np.ndarray, V: FloatArray, radius: float, duplicate: float) -> np.ndarray:
+    """Which vertices of ``small`` lie in a piece at least ``duplicate`` of whose distinct images have, within ``radius``, the image of a vertex outside the piece."""
+    n1 = len(V)
+    count = np.bincount(p2p[p2p >= 0], minlength=n1)  # vertices mapped to each vertex of shape 1
+    key, own = np.unique(label[small] * n1 + p2p[small], return_counts=True)  # (piece, image), sorted
+    piece, image = np.divmod(key, n1)
+    balls = cKDTree(V).query_ball_point(V[image], radius)
+    row = np.repeat(np.arange(len(key)), [len(x) for x in balls])
+    near = np.concatenate(balls).astype(np.int64) if len(row) else np.zeros(0, np.int64)
+    # vertices of the same piece mapped to the neighbour, looked up among the piece's own (piece, image) counts
+    pos = np.minimum(np.searchsorted(key, piece[row] * n1 + near), len(key) - 1)
+    same = np.where(key[pos] == piece[row] * n1 + near, own[pos], 0)
+    outside = np.bincount(row[count[near] > same], minlength=len(key)) > 0
+    k = int(label.max()) + 1
+    covered = np.bincount(piece, outside, minlength=k) / np.maximum(np.bincount(piece, minlength=k), 1)
+    return (covered >= duplicate)[label]
 
 
 def _checked(p2p_21: IndexArray, faces_2: IndexArray, vertices_1: FloatArray, faces_1: IndexArray, name: str) -> tuple[IndexArray, IndexArray, FloatArray]:
@@ -65,14 +85,21 @@ def fill_small_patches(
     *,
     jump: float = 0.1,
     max_fraction: float = 0.05,
+    radius: float = 0.05,
+    duplicate: float = 0.5,
 ) -> tuple[IndexArray, int]:
     """Give the vertices of a map's small continuous patches the image of the nearest large patch.
 
     Shape 2's edges whose two ends map more than ``jump`` apart on shape 1 (in units of
-    the square root of shape 1's area) are cut. Each mapped vertex of a piece left with
-    at most ``max_fraction`` of shape 2's vertices takes the image of the nearest vertex,
-    along shape 2's edges (Euclidean edge lengths), that lies in a larger piece. A
-    vertex with no path to a larger piece keeps its image.
+    the square root of shape 1's area) are cut. A piece left with at most
+    ``max_fraction`` of shape 2's vertices is *small*; the others are *large*. A small
+    piece is filled when it is a duplicate: at least ``duplicate`` of its distinct
+    images lie within ``radius`` of an image of a large piece, so that the region of
+    shape 1 it maps to is already covered by the rest of the map. Each mapped vertex of
+    a filled piece takes the image of the nearest vertex, along shape 2's edges
+    (Euclidean edge lengths), of a large piece; a vertex with no path to a large piece
+    keeps its image. A small piece that is the only cover of its region of shape 1 (a
+    correct part cut off by wrong surroundings) is left alone.
 
     Parameters
     ----------
@@ -87,6 +114,12 @@ def fill_small_patches(
     jump, max_fraction : float
         Chosen on the TOPKIDS training pairs (attempt #111: ``jump`` 0.05-0.2 and
         ``max_fraction`` 0.01-0.1 gave the same figure within 0.01).
+    radius, duplicate : float
+        The duplicate test (attempt #112; ``duplicate=0`` fills every small piece, as
+        before it). ``radius`` is in the same unit as ``jump``: half of it, about four
+        edge lengths of a 12K-vertex body; ``duplicate=0.5`` asks that most of the
+        piece be a second copy. On the TOPKIDS training pairs the test costs 0.001
+        (Euclidean x100, 1.5585 -> 1.5598).
 
     Returns
     -------
@@ -101,8 +134,8 @@ def fill_small_patches(
     n2 = len(p2p)
     if X.shape != (n2, 3):
         raise ValueError(f"{name}: vertices_2 must have shape ({n2}, 3), got {X.shape}")
-    if not (jump > 0 and 0 <= max_fraction <= 1):
-        raise ValueError(f"{name}: need jump > 0 and 0 <= max_fraction <= 1, got {jump}, {max_fraction}")
+    if not (jump > 0 and 0 <= max_fraction <= 1 and radius >= 0 and 0 <= duplicate <= 1):
+        raise ValueError(f"{name}: need jump > 0, 0 <= max_fraction <= 1, radius >= 0 and 0 <= duplicate <= 1; got {jump}, {max_fraction}, {radius}, {duplicate}")
     if n2 == 0 or len(faces) == 0 or len(V) == 0:
         return p2p, 0
     a, b = edges_with_counts(faces)[0].T
@@ -113,6 +146,10 @@ def fill_small_patches(
     large = ~in_small & mapped
     if not small.any() or not large.any():
         return p2p, 0
+    if duplicate > 0:
+        small &= _duplicates(p2p, label, small, V, radius, duplicate)
+        if not small.any():
+            return p2p, 0
     L = np.linalg.norm(X[a] - X[b], axis=1)
     L = L + 1e-12 * max(float(L.max()), 1.0)  # coincident vertices stay joined (a sparse graph's zero is no edge)
     G = sparse.coo_matrix((np.r_[L, L], (np.r_[a, b], np.r_[b, a])), shape=(n2, n2)).tocsr()

@@ -230,9 +230,12 @@ class TemplateMatcher(Matcher):
         Then give the vertices of the map's small islands (pieces of at most 5 % of the
         shape that the map sends away from their surroundings) the image of the nearest
         vertex of the map's large pieces
-        (:func:`~topomatch.maps.patches.fill_small_patches`). Training pairs (after
-        ``mirror_patches``, Euclidean x100 on kid00): 1.632 -> 1.558 (kid15 5.90 -> 5.29,
-        kid02 0.78 -> 0.59; no map worse), attempt #111 in ``docs/flagship.md``.
+        (:func:`~topomatch.maps.patches.fill_small_patches`), when most of the island is
+        a second copy of a region the rest of the map covers (attempt #112: an island
+        that is its region's only cover is a correct part cut off by wrong
+        surroundings, and is kept). Training pairs (after ``mirror_patches``, Euclidean
+        x100 on kid00): 1.632 -> 1.560 (kid15 5.90 -> 5.29, kid02 0.78 -> 0.59; no map
+        worse), attempts #111 and #112 in ``docs/flagship.md``.
     symmetry : str, optional
         Path of the template's left-right symmetry map (a TOPKIDS ``_sym`` file, one or
         two columns, :func:`~topomatch.io.read_sym`), for a ``model`` template.
