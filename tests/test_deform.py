@@ -831,3 +831,29 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
     for bad in (-1, True, 1.5):
         with pytest.raises(ValueError, match="pose_sources"):
             make_matcher("deform", pose_sources=bad).register(src, tgt)
+
+
+def test_deform_matcher_fills_the_small_islands_of_its_map(pair, monkeypatch):
+    import topomatch.matching.deform as deform_module
+    from topomatch.maps.patches import fill_small_patches
+
+    src, tgt, perm = pair
+    # the registration is stubbed and the read-off map damaged: a small disc of the target sent to one far vertex
+    far = int(np.argmax(np.linalg.norm(src.vertices - src.vertices[perm[0]], axis=1)))
+    disc = np.flatnonzero(np.linalg.norm(tgt.vertices - tgt.vertices[0], axis=1) < 0.1 * np.sqrt(tgt.area))
+    damaged = perm.copy()
+    damaged[disc] = far
+    monkeypatch.setattr(deform_module.DeformMatcher, "register", lambda self, s, t: (s.vertices, {"seconds": {"refinement": 0.0}}))
+    monkeypatch.setattr(deform_module, "map_from_deformed", lambda t, d, f: damaged.copy())
+    c = make_matcher("deform").match(src, tgt)
+    expected, n = fill_small_patches(damaged, tgt.vertices, tgt.faces, src.vertices, src.faces)
+    assert 3 < n == len(disc) == c.info["filled"]
+    np.testing.assert_array_equal(c.p2p_21, expected)
+    err = np.linalg.norm(src.vertices[c.p2p_21[disc]] - src.vertices[perm[disc]], axis=1)
+    assert np.all(err < 0.15 * np.sqrt(src.area))  # near the disc's truth, no longer at the far vertex
+    off = make_matcher("deform", fill_patches=False).match(src, tgt)
+    np.testing.assert_array_equal(off.p2p_21, damaged)
+    assert "filled" not in off.info
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="fill_patches"):
+        make_matcher("deform", fill_patches="yes").match(src, tgt)
