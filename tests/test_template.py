@@ -14,6 +14,7 @@ from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.matching import MATCHERS, NotFittedError, make_matcher
 from topomatch.matching.deform import ACCURATE, WORKING_SIZES, map_from_deformed
 from topomatch.matching.template import (
+    FEATURE_ITERATIONS,
     POSE_SOURCES,
     POSED_STARTS,
     REFINED_RUNS,
@@ -95,7 +96,7 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     c = fitted.match(src, tgt)
     assert c.info["registrations"] == {"target": "computed", "source": "is the template"}
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
-    params = {**ACCURATE, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS}
+    params = {**ACCURATE, "feature_icp_iterations": FEATURE_ITERATIONS, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS}
     deformed, _ = make_matcher("deform", **params).register(src, tgt, poses=_poses_for(fitted, tgt))
     plain = map_from_deformed(tgt, deformed, src.faces)
     # the map to the template with its mirrored patches repaired (the template's symmetry map from the null shape)
@@ -139,7 +140,7 @@ def test_template_composes_the_two_registrations(fitted, builtin):
     # syn07 was registered by the previous test (same matcher object): reused
     assert c.info["registrations"] == {"target": "reused", "source": "computed"}
     # the composition, recomputed from the two registrations
-    deform = make_matcher("deform", **{**ACCURATE, **FAST})
+    deform = make_matcher("deform", **{**ACCURATE, "feature_icp_iterations": FEATURE_ITERATIONS, **FAST})
     template = builtin["syn00"].mesh
     d_t, _ = deform.register(template, t.mesh, poses=_poses_for(fitted, t.mesh))
     d_s, _ = deform.register(template, s.mesh, poses=_poses_for(fitted, s.mesh))
@@ -229,6 +230,8 @@ def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
     # sources, without them ACCURATE's five starts and none
     posed = make_matcher("template").fit([builtin[n] for n in ["syn00", *train]])._deformer()
     assert posed.n_starts == POSED_STARTS == 2 and posed.pose_sources == POSE_SOURCES == 1
+    assert posed.feature_icp_iterations == FEATURE_ITERATIONS == 60
+    assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().feature_icp_iterations == ACCURATE.get("feature_icp_iterations", 40)
     assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().pose_sources == 0
     assert make_matcher("template", deform={"n_starts": 1}).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == 1
     assert make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == ACCURATE["n_starts"]

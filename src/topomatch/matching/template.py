@@ -44,7 +44,7 @@ from topomatch.matching.deform import ACCURATE, WORKING_SIZES, DeformMatcher, ma
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["POSED_STARTS", "POSE_SOURCES", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+__all__ = ["FEATURE_ITERATIONS", "POSED_STARTS", "POSE_SOURCES", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
 
 #: Sampling starts of a registration that has the training poses among its hypotheses.
 #: Chosen on the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra x100):
@@ -62,6 +62,13 @@ POSE_SOURCES = 1
 #: registrations' full-mesh scores. Training pairs (leave-one-out, Dijkstra x100): all three
 #: 2.0367, two 2.0366 (14 of 15 maps identical), one 2.31 (attempt #97 in ``docs/flagship.md``).
 REFINED_RUNS = 2
+
+#: Iterations of the final stage with local shape features (``DeformMatcher.feature_icp_iterations``;
+#: ``deform``'s default 40) in the registrations with training poses. Training pairs
+#: (leave-one-out, Dijkstra x100, session 37): 40 1.8348, 60 1.7969, 80 1.7806 at 8.95 and
+#: 9.60 s per pair (60 fine iterations instead of 40: 1.8422); 60 keeps the 10 s goal's margin
+#: (attempt #114 in ``docs/flagship.md``).
+FEATURE_ITERATIONS = 60
 
 
 def _sym_path(mesh_path: Path) -> Path:
@@ -182,7 +189,7 @@ class TemplateMatcher(Matcher):
         :data:`POSED_STARTS` (two) sampling starts, the poses among the hypotheses of
         each, and :data:`POSE_SOURCES` (one) more registration of the template *in*
         the best-fitting training pose (``pose_sources``), the best full-mesh score
-        kept. Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
+        kept, and :data:`FEATURE_ITERATIONS` (60) iterations of the feature stage. Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
         sampling starts, the best fit kept). On the training pairs kid00 ->
         kid01..kid15 (leave-one-out, Dijkstra x100) two starts with the poses and the
         posed source scored 2.04, one start and the posed source 2.08, two starts
@@ -282,7 +289,7 @@ class TemplateMatcher(Matcher):
     def _deformer(self) -> DeformMatcher:
         # with training poses two starts and the best-fitting pose as a source (the best on
         # the training pairs, #86, #90); without, ACCURATE
-        base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES} if getattr(self, "poses_", None) else dict(ACCURATE)
+        base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES, "feature_icp_iterations": FEATURE_ITERATIONS} if getattr(self, "poses_", None) else dict(ACCURATE)
         params = {**base, **(self.deform or {})}
         ws = params.get("working_sizes", WORKING_SIZES)
         posed = bool(base.get("pose_sources") and params.get("pose_sources"))
