@@ -1078,7 +1078,11 @@ class DeformMatcher(Matcher):
         60 2.66, 80 2.58 (attempts #66, #73); with the joint searches on a compiled
         tree (:class:`~topomatch.deform.kdtree.JointTree`, attempt #71) an iteration
         costs about 25 ms at 10K vertices, and 80 iterations about 1 s more per
-        low-res pair than 40; ``docs/flagship.md``.
+        low-res pair than 40; ``docs/flagship.md``. 80 since session 37 (attempt #115: on
+        today's pipeline, with the filling, training pairs 2.55 -> 2.37 and the 210
+        noisy-noisy training pairs AUC 0.656 -> 0.658, at about 0.5 s more per pair); 40
+        until then. ``template`` with training poses runs 60
+        (:data:`~topomatch.matching.template.FEATURE_ITERATIONS`).
     feature_weight : float
         Length (units of sqrt(source area)) that a feature distance of 1 (the
         source's typical feature spread) counts as in those pairs at the first of
@@ -1299,7 +1303,7 @@ class DeformMatcher(Matcher):
         fine_nodes: int = 500,
         fine_icp_iterations: int = 40,
         fine_alpha: tuple[float, float] = (0.2, 0.01),
-        feature_icp_iterations: int = 40,
+        feature_icp_iterations: int = 80,
         feature_weight: float = 0.045,
         swap_threshold: float = 0.05,
         swap_min_vertices: int = 50,
