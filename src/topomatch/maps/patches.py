@@ -16,7 +16,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from topomatch.mesh.geometry import edges_with_counts
+from topomatch.mesh.geometry import edges_with_counts, face_areas
 from topomatch.typing import FloatArray, IndexArray
 
 __all__ = ["fill_small_patches"]
@@ -69,7 +69,7 @@ def _checked(p2p_21: IndexArray, faces_2: IndexArray, vertices_1: FloatArray, fa
     if F1.ndim != 2 or F1.shape[1] != 3 or not np.issubdtype(F1.dtype, np.integer) or (F1.size and (F1.min() < 0 or F1.max() >= n1)):
         raise ValueError(f"{name}: faces_1 must be (f1, 3) indices into shape 1's {n1} vertices")
     if n1 and len(F1):
-        scale = np.sqrt(0.5 * np.linalg.norm(np.cross(V[F1[:, 1]] - V[F1[:, 0]], V[F1[:, 2]] - V[F1[:, 0]]), axis=1).sum())
+        scale = np.sqrt(face_areas(V, F1).sum())
         if not scale > 0:
             raise ValueError(f"{name}: shape 1 has zero area")
         V = V / scale

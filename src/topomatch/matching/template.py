@@ -64,7 +64,7 @@ POSE_SOURCES = 1
 REFINED_RUNS = 2
 
 #: Iterations of the final stage with local shape features (``DeformMatcher.feature_icp_iterations``;
-#: ``deform``'s default 40) in the registrations with training poses. Training pairs
+#: ``deform``'s default is 80 since #115, 40 before) in the registrations with training poses. Training pairs
 #: (leave-one-out, Dijkstra x100, session 37): 40 1.8348, 60 1.7969, 80 1.7806 at 8.95 and
 #: 9.60 s per pair (60 fine iterations instead of 40: 1.8422); 60 keeps the 10 s goal's margin
 #: (attempt #114 in ``docs/flagship.md``).
