@@ -767,6 +767,32 @@ def test_deform_feature_stage_parameters(pair):
         make_matcher("deform", feature_weight=float("nan")).match(src, tgt)
 
 
+def test_deform_feature_stage_of_a_posed_source_uses_the_source_own_features(builtin, monkeypatch):
+    """The posed copy is the source's surface in another pose: its feature stage reads the source's own local features."""
+    import topomatch.matching.deform as deform_module
+
+    src = builtin["syn00"].mesh
+    basis = src.eigenbasis(2)
+    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
+    tgt, _ = shuffled(TriangleMesh(bends[2][1], src.faces), seed=7)
+    fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 2, "articulated": 0}
+    poses = [("a", bends[0][1]), ("b", bends[2][1])]
+    seen: list[np.ndarray] = []
+    original = deform_module.local_wks_features
+
+    def spy(source, target, **kw):
+        seen.append(np.array(source.vertices))
+        return original(source, target, **kw)
+
+    monkeypatch.setattr(deform_module, "local_wks_features", spy)
+    _, info = make_matcher("deform", **fast, pose_sources=1, n_threads=1).register(src, tgt, poses=poses)
+    assert [r["source_pose"] for r in info["runs"]] == [None, "b"] and all(r["refined"] for r in info["runs"])
+    # both refinements (the plain source and the source posed as "b") read the source's features
+    assert len(seen) == 2 and all(np.array_equal(v, src.vertices) for v in seen)
+    # the posed run itself deforms the posed copy (its rest shape is the pose, not the source)
+    assert not np.allclose(bends[2][1], src.vertices)
+
+
 def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
     src = builtin["syn00"].mesh
     basis = src.eigenbasis(2)

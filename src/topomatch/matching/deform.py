@@ -163,6 +163,9 @@ class _Verified:
     order: IndexArray
     """The results by residual, best first (empty until :func:`_collected`)."""
     seconds: float
+    features_of: TriangleMesh | None = None
+    """The mesh whose local features stand for the source's in the feature stage: the source
+    as it is for a registration of the source in a pose (``pose_sources``); ``None``: the source."""
 
 
 @dataclass
@@ -1239,7 +1242,10 @@ class DeformMatcher(Matcher):
         are the rest state of the deformation graph, so a folded forearm that the pose
         already folds is not straightened by the stiffness terms. Each such registration
         (sampling start 0, no pose hypotheses) is judged with the others by its
-        full-mesh score; its distortion is measured against the pose. A prior from the
+        full-mesh score; its distortion is measured against the pose, and its feature stage
+        reads the source's own local features (the posed copy is the same surface in another
+        pose; its features, computed on a surface bent by interpolation, are not the
+        source's: ``template``'s training pairs 1.797 -> 1.770, attempt #123). A prior from the
         training poses only, like ``pose_keep``. With ``template``'s two starts and the
         training poses of ``kid00`` (leave-one-out), one took the training pairs kid00 ->
         kid01..kid15 from 2.30 to 2.04 (Dijkstra x100); two were no better than one in
@@ -1658,8 +1664,9 @@ class DeformMatcher(Matcher):
         samples: tuple[IndexArray, IndexArray],
         graph: DeformationGraph,
         start: int = 0,
+        features_of: TriangleMesh | None = None,
     ) -> tuple[int, RegistrationResult, list[tuple[str, int]], dict[str, tuple[float, float]], list[dict]]:
-        """Steps 3-6: swaps, continuation and choice, limb turns, fine registration."""
+        """Steps 3-6: swaps, continuation and choice, limb turns, fine registration (the last with the local features of ``features_of``, default ``source``)."""
         W = target.vertices
         fine_graph = build_deformation_graph(
             source.vertices, source.faces, min(self.fine_nodes, source.n_vertices), first=_start_vertex(source.n_vertices, start, self.n_starts)
@@ -1702,7 +1709,7 @@ class DeformMatcher(Matcher):
         if r_best is None:
             r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best], n_threads=self._n_threads())
         if self.feature_icp_iterations > 0 and self.feature_weight > 0:
-            features = local_wks_features(source, target, k=self.k_zoomout)
+            features = local_wks_features(source if features_of is None else features_of, target, k=self.k_zoomout)
             last = RegistrationSchedule(
                 n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.feature_icp_iterations,
                 alpha_icp=FEATURE_ALPHA, sigma_icp=FEATURE_SIGMA, feature_weight=(float(self.feature_weight), 0.0),
@@ -1880,6 +1887,9 @@ class DeformMatcher(Matcher):
                     done.add(key)
                     rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
                     v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool)
+                    if posed is not None:
+                        # the posed copy is the source's surface in another pose: its features are the source's own
+                        v = dataclasses.replace(v, features_of=src)
                     home = source.vertices if posed is None else poses[posed][1]
                     run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
                            "source_pose": None if posed is None else src_poses[posed][0],
@@ -1964,7 +1974,7 @@ class DeformMatcher(Matcher):
         t1 = time.perf_counter()
         with one_blas_thread():
             i_best, r_best, swaps, continued, limbs = self._refine(
-                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start
+                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.features_of
             )
         info = {
             "hypothesis": v.hyps[i_best].label,
