@@ -767,8 +767,8 @@ def test_deform_feature_stage_parameters(pair):
         make_matcher("deform", feature_weight=float("nan")).match(src, tgt)
 
 
-def test_deform_feature_stage_of_a_posed_source_uses_the_source_own_features(builtin, monkeypatch):
-    """The posed copy is the source's surface in another pose: its feature stage reads the source's own local features."""
+def test_deform_posed_source_uses_the_source_own_intrinsic_data(builtin, monkeypatch):
+    """The posed copy is the source's surface in another pose: its spectral hypotheses and feature stage read the source's own data."""
     import topomatch.matching.deform as deform_module
 
     src = builtin["syn00"].mesh
@@ -778,16 +778,24 @@ def test_deform_feature_stage_of_a_posed_source_uses_the_source_own_features(bui
     fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 2, "articulated": 0}
     poses = [("a", bends[0][1]), ("b", bends[2][1])]
     seen: list[np.ndarray] = []
-    original = deform_module.local_wks_features
+    spectral: list[np.ndarray] = []
+    original, original_spectral = deform_module.local_wks_features, deform_module.spectral_hypotheses
 
     def spy(source, target, **kw):
         seen.append(np.array(source.vertices))
         return original(source, target, **kw)
 
+    def spy_spectral(source, target, *args, **kw):
+        spectral.append(np.array(source.vertices))
+        return original_spectral(source, target, *args, **kw)
+
     monkeypatch.setattr(deform_module, "local_wks_features", spy)
+    monkeypatch.setattr(deform_module, "spectral_hypotheses", spy_spectral)
     _, info = make_matcher("deform", **fast, pose_sources=1, n_threads=1).register(src, tgt, poses=poses)
     assert [r["source_pose"] for r in info["runs"]] == [None, "b"] and all(r["refined"] for r in info["runs"])
-    # both refinements (the plain source and the source posed as "b") read the source's features
+    # both registrations (the plain source and the source posed as "b") read the source's
+    # eigenbasis for their spectral hypotheses and its features in the feature stage
+    assert len(spectral) == 2 and all(np.array_equal(v, src.vertices) for v in spectral)
     assert len(seen) == 2 and all(np.array_equal(v, src.vertices) for v in seen)
     # the posed run itself deforms the posed copy (its rest shape is the pose, not the source)
     assert not np.allclose(bends[2][1], src.vertices)

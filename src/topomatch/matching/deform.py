@@ -163,9 +163,10 @@ class _Verified:
     order: IndexArray
     """The results by residual, best first (empty until :func:`_collected`)."""
     seconds: float
-    features_of: TriangleMesh | None = None
-    """The mesh whose local features stand for the source's in the feature stage: the source
-    as it is for a registration of the source in a pose (``pose_sources``); ``None``: the source."""
+    intrinsic: TriangleMesh | None = None
+    """The mesh whose intrinsic data (the spectral hypotheses, the feature stage's local
+    features) stand for the source's: the source as it is for a registration of the source
+    in a pose (``pose_sources``); ``None``: the source."""
 
 
 @dataclass
@@ -1585,6 +1586,7 @@ class DeformMatcher(Matcher):
         poses: Sequence[tuple[str, FloatArray]] = (),
         memo: dict[str, Any] | None = None,
         pool: ThreadPoolExecutor | None = None,
+        intrinsic: TriangleMesh | None = None,
     ) -> tuple[list[Hypothesis], list[Any]]:
         """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
 
@@ -1606,7 +1608,8 @@ class DeformMatcher(Matcher):
             # spectral hypotheses compute anyway (no separate two-eigenpair solve)
             source.eigenbasis(self.k_zoomout)
         # generators: nothing is computed before a hypothesis is asked for
-        spectral = spectral_hypotheses(source, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
+        # (the maps are between vertex indices: ``intrinsic`` has the source's vertices, in order)
+        spectral = spectral_hypotheses(source if intrinsic is None else intrinsic, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
         extrinsic = chain(
             rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
@@ -1664,9 +1667,9 @@ class DeformMatcher(Matcher):
         samples: tuple[IndexArray, IndexArray],
         graph: DeformationGraph,
         start: int = 0,
-        features_of: TriangleMesh | None = None,
+        intrinsic: TriangleMesh | None = None,
     ) -> tuple[int, RegistrationResult, list[tuple[str, int]], dict[str, tuple[float, float]], list[dict]]:
-        """Steps 3-6: swaps, continuation and choice, limb turns, fine registration (the last with the local features of ``features_of``, default ``source``)."""
+        """Steps 3-6: swaps, continuation and choice, limb turns, fine registration (the last with the local features of ``intrinsic``, default ``source``)."""
         W = target.vertices
         fine_graph = build_deformation_graph(
             source.vertices, source.faces, min(self.fine_nodes, source.n_vertices), first=_start_vertex(source.n_vertices, start, self.n_starts)
@@ -1709,7 +1712,7 @@ class DeformMatcher(Matcher):
         if r_best is None:
             r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best], n_threads=self._n_threads())
         if self.feature_icp_iterations > 0 and self.feature_weight > 0:
-            features = local_wks_features(source if features_of is None else features_of, target, k=self.k_zoomout)
+            features = local_wks_features(source if intrinsic is None else intrinsic, target, k=self.k_zoomout)
             last = RegistrationSchedule(
                 n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.feature_icp_iterations,
                 alpha_icp=FEATURE_ALPHA, sigma_icp=FEATURE_SIGMA, feature_weight=(float(self.feature_weight), 0.0),
@@ -1886,10 +1889,10 @@ class DeformMatcher(Matcher):
                         continue
                     done.add(key)
                     rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
-                    v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool)
-                    if posed is not None:
-                        # the posed copy is the source's surface in another pose: its features are the source's own
-                        v = dataclasses.replace(v, features_of=src)
+                    # the posed copy is the source's surface in another pose: its intrinsic data
+                    # (spectral hypotheses, local features) are the source's own
+                    v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool,
+                                       intrinsic=None if posed is None else src)
                     home = source.vertices if posed is None else poses[posed][1]
                     run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
                            "source_pose": None if posed is None else src_poses[posed][0],
@@ -1958,6 +1961,7 @@ class DeformMatcher(Matcher):
         poses: Sequence[tuple[str, FloatArray]] = (),
         memo: dict[str, Any] | None = None,
         pool: ThreadPoolExecutor | None = None,
+        intrinsic: TriangleMesh | None = None,
     ) -> _Verified:
         """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification.
 
@@ -1966,15 +1970,15 @@ class DeformMatcher(Matcher):
         """
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool)
-        return _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0)
+        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic)
+        return _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic)
 
     def _refined(self, v: _Verified) -> tuple[FloatArray, dict[str, Any]]:
         """Steps 3-6 of a verified registration: the deformed source and the diagnostics."""
         t1 = time.perf_counter()
         with one_blas_thread():
             i_best, r_best, swaps, continued, limbs = self._refine(
-                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.features_of
+                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.intrinsic
             )
         info = {
             "hypothesis": v.hyps[i_best].label,
