@@ -1243,10 +1243,12 @@ class DeformMatcher(Matcher):
         are the rest state of the deformation graph, so a folded forearm that the pose
         already folds is not straightened by the stiffness terms. Each such registration
         (sampling start 0, no pose hypotheses) is judged with the others by its
-        full-mesh score; its distortion is measured against the pose, and its feature stage
-        reads the source's own local features (the posed copy is the same surface in another
-        pose; its features, computed on a surface bent by interpolation, are not the
-        source's: ``template``'s training pairs 1.797 -> 1.770, attempt #123). A prior from the
+        full-mesh score; its distortion is measured against the pose, and its spectral
+        hypotheses and feature stage read the source's own eigenbasis and local features
+        (the posed copy is the same surface in another pose; its intrinsic data, computed on
+        a surface bent by interpolation, are not the source's: ``template``'s training pairs
+        1.797 -> 1.770 with the features, attempt #123, -> 1.690 with the hypotheses too,
+        #124). A prior from the
         training poses only, like ``pose_keep``. With ``template``'s two starts and the
         training poses of ``kid00`` (leave-one-out), one took the training pairs kid00 ->
         kid01..kid15 from 2.30 to 2.04 (Dijkstra x100); two were no better than one in
