@@ -17,10 +17,12 @@ from topomatch.matching.deform import (
     _sphere_directions,
     articulated_hypotheses,
     bend_in_two,
+    local_wks_features,
     map_from_deformed,
     pose_hypotheses,
     rigid_hypotheses,
     source_limbs,
+    spectral_hypotheses,
     swap_regions,
     turn_limb,
 )
@@ -509,11 +511,21 @@ def test_articulated_hypotheses_recover_a_figure_bent_in_two(builtin):
     assert best.label == f"bent {label}"
 
 
-def test_pose_hypotheses_find_the_known_pose(builtin):
+def _bent_syn00(builtin, seed: int) -> tuple[TriangleMesh, list, TriangleMesh, np.ndarray]:
+    """syn00, its copies bent in two at 90 degrees, and the third bent copy shuffled (vertex ``i`` is syn00's ``perm[i]``)."""
     src = builtin["syn00"].mesh
     basis = src.eigenbasis(2)
     bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
-    tgt0, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=6)  # tgt0 vertex i is source vertex perm[i]
+    tgt, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=seed)
+    return src, bends, tgt, perm
+
+
+# a fast registration for the small pose tests (no limb rounds, no feature stage, no bent hypotheses)
+_FAST_POSED = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 0, "articulated": 0}
+
+
+def test_pose_hypotheses_find_the_known_pose(builtin):
+    src, bends, tgt0, perm = _bent_syn00(builtin, seed=6)  # tgt0 vertex i is source vertex perm[i]
     R = _rotation(np.array([0.3, 1.0, 0.2]), 2.5)  # beyond the reach of an ICP from the frame as given
     tgt = TriangleMesh(1.2 * tgt0.vertices @ R.T + np.array([1.0, 2.0, -0.5]), tgt0.faces)
     s1 = np.arange(0, src.n_vertices, 4)
@@ -538,11 +550,8 @@ def test_pose_hypotheses_find_the_known_pose(builtin):
 
 
 def test_deform_verifies_the_pose_hypotheses(builtin, monkeypatch):
-    src = builtin["syn00"].mesh
-    basis = src.eigenbasis(2)
-    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
-    tgt, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=7)
-    fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 0, "articulated": 0}
+    src, bends, tgt, perm = _bent_syn00(builtin, seed=7)
+    fast = _FAST_POSED
     m = make_matcher("deform", **fast)
     poses = [("b", bends[2][1]), ("a", bends[0][1])]
     hyps, results = m.verify_hypotheses(src, tgt, poses=poses)
@@ -742,8 +751,6 @@ def test_features_stop_a_registration_sliding():
 
 
 def test_local_wks_features(pair):
-    from topomatch.matching.deform import local_wks_features
-
     src, tgt, perm = pair
     fs, ft = local_wks_features(src, tgt, k=40, n_energies=20, first=10, n_components=4)
     assert fs.shape == (src.n_vertices, 4) and ft.shape == (tgt.n_vertices, 4)
@@ -769,28 +776,22 @@ def test_deform_feature_stage_parameters(pair):
 
 def test_deform_posed_source_uses_the_source_own_intrinsic_data(builtin, monkeypatch):
     """The posed copy is the source's surface in another pose: its spectral hypotheses and feature stage read the source's own data."""
-    import topomatch.matching.deform as deform_module
-
-    src = builtin["syn00"].mesh
-    basis = src.eigenbasis(2)
-    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
-    tgt, _ = shuffled(TriangleMesh(bends[2][1], src.faces), seed=7)
-    fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 2, "articulated": 0}
+    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
+    fast = {**_FAST_POSED, "feature_icp_iterations": 2}
     poses = [("a", bends[0][1]), ("b", bends[2][1])]
     seen: list[np.ndarray] = []
     spectral: list[np.ndarray] = []
-    original, original_spectral = deform_module.local_wks_features, deform_module.spectral_hypotheses
 
     def spy(source, target, **kw):
         seen.append(np.array(source.vertices))
-        return original(source, target, **kw)
+        return local_wks_features(source, target, **kw)
 
     def spy_spectral(source, target, *args, **kw):
         spectral.append(np.array(source.vertices))
-        return original_spectral(source, target, *args, **kw)
+        return spectral_hypotheses(source, target, *args, **kw)
 
-    monkeypatch.setattr(deform_module, "local_wks_features", spy)
-    monkeypatch.setattr(deform_module, "spectral_hypotheses", spy_spectral)
+    monkeypatch.setattr("topomatch.matching.deform.local_wks_features", spy)
+    monkeypatch.setattr("topomatch.matching.deform.spectral_hypotheses", spy_spectral)
     _, info = make_matcher("deform", **fast, pose_sources=1, n_threads=1).register(src, tgt, poses=poses)
     assert [r["source_pose"] for r in info["runs"]] == [None, "b"] and all(r["refined"] for r in info["runs"])
     # both registrations (the plain source and the source posed as "b") read the source's
@@ -802,11 +803,8 @@ def test_deform_posed_source_uses_the_source_own_intrinsic_data(builtin, monkeyp
 
 
 def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
-    src = builtin["syn00"].mesh
-    basis = src.eigenbasis(2)
-    bends = bend_in_two(src.vertices, src.faces, basis.evecs[:, 1], basis.mass, (90.0,))
-    tgt, perm = shuffled(TriangleMesh(bends[2][1], src.faces), seed=7)
-    fast = {"n_samples": 600, "coarse_nodes": 80, "fine_nodes": 150, "limb_rounds": 0, "feature_icp_iterations": 0, "articulated": 0}
+    src, bends, tgt, perm = _bent_syn00(builtin, seed=7)
+    fast = _FAST_POSED
     poses = [("a", bends[0][1]), ("b", bends[2][1])]
     scale = np.sqrt(src.area)
     base_deformed, base = make_matcher("deform", **fast).register(src, tgt, poses=poses)
