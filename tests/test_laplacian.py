@@ -85,6 +85,23 @@ def test_eigenbasis_disk_cache(tmp_path, small_sphere, monkeypatch):
     np.testing.assert_allclose(third.evals, b.evals)
 
 
+def test_eigenbasis_disk_cache_never_serves_a_slice(tmp_path, small_sphere, monkeypatch):
+    """A stored 20-eigenpair basis does not answer a request for 10: the answer is what a
+    solve for 10 gives, cache or not (slicing a larger solve is not the same bits)."""
+    from topomatch import _cache
+
+    monkeypatch.setattr(_cache, "_CACHE_DIR", None)
+    monkeypatch.delenv("TOPOMATCH_CACHE_DIR", raising=False)
+    solved = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(10)
+    monkeypatch.setattr(_cache, "_CACHE_DIR", tmp_path)
+    TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(20)
+    got = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(10)
+    np.testing.assert_array_equal(got.evecs, solved.evecs)
+    assert len(list((tmp_path / "eigen").glob("*.npz"))) == 2  # one entry per k
+    again = TriangleMesh(small_sphere.vertices, small_sphere.faces).eigenbasis(10)
+    np.testing.assert_array_equal(again.evecs, solved.evecs)  # now from the disk
+
+
 @pytest.fixture
 def fork_ready(monkeypatch):
     """Forking for small meshes too (the test spheres are below the default size), and the

@@ -1605,9 +1605,11 @@ class DeformMatcher(Matcher):
             icp_iterations=self.coarse_icp_iterations,
             alpha_icp=tuple(self.coarse_alpha),
         )
-        if self.articulated > 0:
+        if self.articulated > 0 and intrinsic is None:
             # the bent copies split at the Fiedler vector: take it from the basis the
-            # spectral hypotheses compute anyway (no separate two-eigenpair solve)
+            # spectral hypotheses compute anyway (no separate two-eigenpair solve). A
+            # posed copy's spectral hypotheses read ``intrinsic``'s basis: the copy itself
+            # only needs its Fiedler vector, a two-eigenpair solve.
             source.eigenbasis(self.k_zoomout)
         # generators: nothing is computed before a hypothesis is asked for
         # (the maps are between vertex indices: ``intrinsic`` has the source's vertices, in order)

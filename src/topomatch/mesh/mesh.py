@@ -217,14 +217,17 @@ class TriangleMesh:
     def eigenbasis(self, k: int, *, kind: LaplacianKind = "robust") -> Eigenbasis:
         """The ``k`` smallest Laplacian eigenpairs.
 
-        Computes ``max(k, largest computed so far)`` and slices; uses the disk cache
-        when one is configured (see :mod:`topomatch._cache`).
+        Slices a basis of ``k`` or more eigenpairs already computed on this mesh;
+        otherwise solves for ``k`` (or loads them from the disk cache, when one is
+        configured: see :mod:`topomatch._cache`). The disk cache keeps one entry per
+        ``k``: a solve for fewer eigenpairs does not give the same bits as slicing a
+        larger one, and a result must not depend on what the cache holds.
         """
         if self._has_eigenbasis(k, kind):
             return self._eig[kind].truncate(k)
-        key = self._eigenbasis_key(kind)
+        key = self._eigenbasis_key(k, kind)
         stored = _cache.load("eigen", key)
-        if stored is not None and stored["evals"].shape[0] >= k:
+        if stored is not None and stored["evals"].shape[0] == k:
             basis = Eigenbasis(stored["evals"], stored["evecs"], stored["mass"])
         else:
             L, M = self.laplacian(kind)
@@ -259,9 +262,9 @@ class TriangleMesh:
         """
         return EigenbasisJob(self, k, kind)
 
-    def _eigenbasis_key(self, kind: LaplacianKind) -> str:
-        """The disk cache's key of this mesh's eigenbasis."""
-        return _cache.array_hash(self.vertices, self.faces, extra=f"eig:{kind}")
+    def _eigenbasis_key(self, k: int, kind: LaplacianKind) -> str:
+        """The disk cache's key of this mesh's ``k``-eigenpair basis."""
+        return _cache.array_hash(self.vertices, self.faces, extra=f"eig:{kind}:{k}")
 
     def _has_eigenbasis(self, k: int, kind: LaplacianKind) -> bool:
         have = self._eig.get(kind)
@@ -314,7 +317,7 @@ class EigenbasisJob:
             # e.g. another thread of the caller's may hold a lock (BLAS, allocator) at
             # the fork, which the child would wait for forever: compute here instead
             return
-        if _cache.exists("eigen", mesh._eigenbasis_key(kind)):
+        if _cache.exists("eigen", mesh._eigenbasis_key(k, kind)):
             return  # loading beats forking
         ctx = multiprocessing.get_context("fork")
         receive, send = ctx.Pipe(duplex=False)
