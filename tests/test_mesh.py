@@ -73,6 +73,23 @@ def test_non_manifold_duplicate_and_components():
     assert info["duplicate_faces"] == 1 and info["unreferenced_vertices"] == 1
 
 
+@pytest.mark.parametrize("dtype", [np.int64, np.int32])
+def test_edges_with_counts_equals_the_row_unique_formula(dtype):
+    """The 1-D keyed unique gives what ``np.unique(..., axis=0)`` gives, on a boundary, a
+    non-manifold fin and a degenerate face, for 32-bit faces too."""
+    s = grid(6, 5)
+    f = np.vstack([s.faces, s.faces[:1][:, ::-1], [[3, 3, 7]]]).astype(dtype)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    want, want_counts = np.unique(e, axis=0, return_counts=True)
+    edges, counts = g.edges_with_counts(f)
+    np.testing.assert_array_equal(edges, want)
+    np.testing.assert_array_equal(counts, want_counts)
+    assert edges.dtype == np.int64 and counts.dtype == np.int64
+    assert set(np.unique(counts)) == {1, 2, 3}  # boundary, interior, the fin
+    empty, none = g.edges_with_counts(np.zeros((0, 3), dtype=dtype))
+    assert empty.shape == (0, 2) and none.shape == (0,)
+
+
 def test_boundary_loops_of_annulus():
     m = grid(7)
     v, f = np.array(m.vertices), np.array(m.faces)

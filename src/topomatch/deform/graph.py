@@ -122,8 +122,11 @@ def build_deformation_graph(
     gi, gj = g.nonzero()
     a, b = node_of_vertex[gi], node_of_vertex[gj]
     cross = a < b
-    pairs, counts = np.unique(np.stack([a[cross], b[cross]], axis=1), axis=0, return_counts=True)
     m = len(nodes)
+    # the distinct node pairs in lexicographic order (``np.unique(..., axis=0)``'s), keyed
+    # by one integer each: a 1-D unique is several times faster
+    keys, counts = np.unique(a[cross].astype(np.int64) * m + b[cross], return_counts=True)
+    pairs = np.stack([keys // m, keys % m], axis=1)
     if len(pairs) == 0:
         pairs = np.zeros((0, 2), dtype=np.int64)
         counts = np.zeros(0)

@@ -91,14 +91,20 @@ def edges_with_counts(faces: IndexArray) -> tuple[IndexArray, IndexArray]:
     Returns
     -------
     edges : ndarray, shape (n_edges, 2)
-        Sorted vertex pairs ``(i, j)`` with ``i < j``.
+        Vertex pairs ``(i, j)`` with ``i <= j`` (equal only in a degenerate face), in
+        lexicographic order.
     counts : ndarray, shape (n_edges,)
         Number of incident faces: 1 on a boundary, 2 inside a manifold, 3+ non-manifold.
     """
+    faces = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     e = np.sort(e, axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
-    return edges.astype(np.int64), counts.astype(np.int64)
+    # one integer per pair, in the pairs' lexicographic order: a 1-D unique is about six
+    # times faster than ``np.unique(e, axis=0)`` (kid00 low res: 5 ms against 30), and the
+    # registration asks for the edges of its source many times per pair
+    n = int(e.max(initial=-1)) + 1
+    _, first, counts = np.unique(e[:, 0] * n + e[:, 1], return_index=True, return_counts=True)
+    return e[first], counts.astype(np.int64)
 
 
 def boundary_edges(faces: IndexArray) -> IndexArray:
