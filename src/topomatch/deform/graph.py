@@ -16,7 +16,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from topomatch.mesh.geometry import edge_graph
+from topomatch.mesh.geometry import edge_graph, unique_index_pairs
 from topomatch.mesh.sampling import farthest_point_sampling
 from topomatch.typing import FloatArray, IndexArray
 
@@ -123,10 +123,7 @@ def build_deformation_graph(
     a, b = node_of_vertex[gi], node_of_vertex[gj]
     cross = a < b
     m = len(nodes)
-    # the distinct node pairs in lexicographic order (``np.unique(..., axis=0)``'s), keyed
-    # by one integer each: a 1-D unique is several times faster
-    keys, counts = np.unique(a[cross].astype(np.int64) * m + b[cross], return_counts=True)
-    pairs = np.stack([keys // m, keys % m], axis=1)
+    pairs, counts = unique_index_pairs(a[cross], b[cross], m)
     if len(pairs) == 0:
         pairs = np.zeros((0, 2), dtype=np.int64)
         counts = np.zeros(0)
