@@ -4,7 +4,7 @@ TOPKIDS shapes come in one coordinate frame, so the matcher's "as-given" rigid
 hypothesis starts close to the answer, and ``template``'s training poses are in that
 frame too. A user's scans need not be. For each target this script runs the matcher
 twice in the same process: on the target as distributed, and on the target moved by a
-random rigid motion (rotation uniform over SO(3), seeded per pair, plus a shift of one
+random rigid motion (rotation uniform over SO(3), seeded per shape, plus a shift of one
 shape diameter). Geodesic errors are scored on the original shapes (a rigid motion
 changes no geodesic), with the project's scorer. Training pairs only.
 
@@ -36,9 +36,15 @@ def main() -> None:
     args = ap.parse_args()
     coll, prot, ref, src = load_topkids25(ap, args)
     m = make_matcher("deform")
-    train = [n for n in coll.names if n in {f"kid{i:02d}" for i in range(16)}]
+    fit_shapes = coll.present([ref, *coll.splits.get("train", [])])  # as topomatch bench fits
     maps, info = {}, {}
-    for i, t in enumerate(args.targets):
+    missing = [t for t in args.targets if t not in coll]
+    if missing:
+        ap.error(f"no shape {', '.join(missing)} in {args.data} (present: {', '.join(coll.names)})")
+    for t in args.targets:
+        # the rotation is seeded by the shape (its place in the collection, kid01 -> 0), not by
+        # its place on the command line, so a target alone is moved as in the full run
+        i = coll.names.index(t) - 1
         tgt = coll[t].mesh
         R = Rotation.random(random_state=np.random.default_rng(1000 + i)).as_matrix()
         V = tgt.vertices
@@ -46,7 +52,7 @@ def main() -> None:
         moved = TriangleMesh(V @ R.T + shift, tgt.faces, name=f"{t}-moved")
         angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
         if args.method == "template":  # leave the target's own pose out, whatever its frame
-            m = make_matcher("template").fit([coll[n] for n in train if n != t])
+            m = make_matcher("template").fit([coll[n] for n in fit_shapes if n != t])
         for variant, mesh in (("as-given", tgt), ("moved", moved)):
             t0 = time.perf_counter()
             c = m.match(src, mesh)
