@@ -47,6 +47,11 @@ def topkids_targets_parser(description: str, json_help: str) -> argparse.Argumen
     return ap
 
 
+def fit_shapes(coll: ShapeCollection) -> list[str]:
+    """The shapes ``topomatch bench`` fits a trained matcher on: the reference and the training split present."""
+    return coll.present([coll.reference, *coll.splits.get("train", [])])
+
+
 def load_topkids25(ap: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[ShapeCollection, Protocol, str, TriangleMesh]:
     """The low-res TOPKIDS collection, the ``topkids25`` protocol, the reference's name and mesh."""
     if not args.data:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from _common import emit_row, load_topkids25, topkids_targets_parser
+from _common import emit_row, fit_shapes, load_topkids25, topkids_targets_parser
 from scipy.spatial.transform import Rotation
 
 from topomatch.evaluation.scoring import score_maps
@@ -35,8 +35,7 @@ def main() -> None:
     ap.add_argument("--method", default="deform", choices=["deform", "template"])
     args = ap.parse_args()
     coll, prot, ref, src = load_topkids25(ap, args)
-    m = make_matcher("deform")
-    fit_shapes = coll.present([ref, *coll.splits.get("train", [])])  # as topomatch bench fits
+    m = make_matcher("deform")  # template: fitted per target below
     maps, info = {}, {}
     missing = [t for t in args.targets if t not in coll]
     if missing:
@@ -52,7 +51,7 @@ def main() -> None:
         moved = TriangleMesh(V @ R.T + shift, tgt.faces, name=f"{t}-moved")
         angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
         if args.method == "template":  # leave the target's own pose out, whatever its frame
-            m = make_matcher("template").fit([coll[n] for n in fit_shapes if n != t])
+            m = make_matcher("template").fit([coll[n] for n in fit_shapes(coll) if n != t])
         for variant, mesh in (("as-given", tgt), ("moved", moved)):
             t0 = time.perf_counter()
             c = m.match(src, mesh)

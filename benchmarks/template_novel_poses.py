@@ -24,10 +24,8 @@ import statistics
 import time
 
 import numpy as np
-from _common import emit_row
+from _common import emit_row, fit_shapes, load_topkids25
 
-from topomatch.datasets.topkids import load_topkids
-from topomatch.evaluation.protocols import get_protocol
 from topomatch.evaluation.scoring import score_maps
 from topomatch.matching.template import TemplateMatcher
 
@@ -47,17 +45,12 @@ def main() -> None:
     ap.add_argument("--geodesic", default="dijkstra", choices=["dijkstra", "heat", "exact"])
     ap.add_argument("--json", default=None, help="append one JSON line per pair and setting")
     args = ap.parse_args()
-    if not args.data:
-        ap.error("give --data or set TOPOMATCH_DATA")
-    coll = load_topkids(args.data, "low")
-    ref = coll.reference
-    train = coll.present(coll.splits.get("train", []))
+    coll, prot, ref, template = load_topkids25(ap, args)
+    train = [n for n in fit_shapes(coll) if n != ref]
     if not train:
         ap.error(f"{args.data}: no training shapes with ground truth")
-    template = coll[ref].mesh
     scale = float(np.sqrt(template.area))
-    poses = {name: P for name, _, P in TemplateMatcher().fit([coll[ref], *(coll[n] for n in train)]).poses_}
-    prot = get_protocol("topkids25")
+    poses = {name: P for name, _, P in TemplateMatcher().fit([coll[n] for n in fit_shapes(coll)]).poses_}
     for k in args.k:
         maps, info = {}, {}
         for name in train:

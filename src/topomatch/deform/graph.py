@@ -123,10 +123,7 @@ def build_deformation_graph(
     a, b = node_of_vertex[gi], node_of_vertex[gj]
     cross = a < b
     m = len(nodes)
-    pairs, counts = unique_index_pairs(a[cross], b[cross], m)
-    if len(pairs) == 0:
-        pairs = np.zeros((0, 2), dtype=np.int64)
-        counts = np.zeros(0)
+    pairs, counts = unique_index_pairs(a[cross], b[cross], m)  # shapes (0, 2) and (0,) when there are none
     weights = counts / counts.mean() if len(counts) else counts.astype(np.float64)
     rest = v[nodes]
     spacing = float(np.linalg.norm(rest[pairs[:, 0]] - rest[pairs[:, 1]], axis=1).mean()) if len(pairs) else 1.0
