@@ -125,6 +125,10 @@ def test_param_values_parse_like_python_and_shell_booleans():
     assert p["deform"] == {"background_eigenbasis": False, "k_zoomout": 80, "n_threads": 1}
     assert p["fmap"] == {"n_threads": 1, "note": "abc"}
     assert _parse_params(["x.flag=True"])["x"]["flag"] is True
+    # a dict typed as JSON (null, true) parses too, and the same dict typed as Python
+    js = _parse_params(['template.deform={"pose_sources": 4, "refine_runs": null, "limb": true}'])["template"]["deform"]
+    assert js == {"pose_sources": 4, "refine_runs": None, "limb": True}
+    assert _parse_params(["template.deform={'pose_sources': 4, 'refine_runs': None, 'limb': True}"])["template"]["deform"] == js
 
 
 @pytest.mark.parametrize("flags, cached", [([], True), (["--no-cache"], False)])

@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from topomatch.datasets.toy import icosphere
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
+from topomatch.maps import folded_fraction
 from topomatch.matching import MATCHERS, make_matcher
 from topomatch.matching.deform import (
     _rank_poses,
@@ -832,6 +833,20 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
     for bad in ((), (1500,), 1000):
         with pytest.raises(ValueError, match="start_sizes"):
             make_matcher("deform", working_sizes=(1000, 1200), start_sizes=bad).register(src, tgt)
+    # orientation_weight: the same refined runs, the final choice by fit residual + weight x folded fraction
+    oriented, info_o = make_matcher("deform", **fast, pose_sources=1, orientation_weight=0.1).register(src, tgt, poses=poses)
+    runs_o = info_o["runs"]
+    assert [r["score"] for r in runs_o] == [r["score"] for r in runs]
+    assert all(0 <= r["folded"] <= 1 for r in runs_o)
+    keys = [r["full_residual"] + 0.1 * r["folded"] for r in runs_o]
+    assert info_o["run"] == int(np.argmin(keys))
+    p2p_o = map_from_deformed(tgt, oriented, src.faces)
+    assert runs_o[info_o["run"]]["folded"] == folded_fraction(p2p_o, src.vertices, src.vertex_normals, tgt.faces, tgt.face_areas)
+    # the target's own shape as the posed source: the map follows the surface, nothing turned over
+    assert runs_o[1]["folded"] < 0.01 and info_o["run"] == 1
+    for bad in (-0.1, True, "0.1"):
+        with pytest.raises(ValueError, match="orientation_weight"):
+            make_matcher("deform", orientation_weight=bad).register(src, tgt)
     # without poses there is nothing to register in a pose: one plain registration
     assert "runs" not in make_matcher("deform", **fast, pose_sources=1).register(src, tgt)[1]
     # refine_runs: every run verified, the best by verified score refined (each as when all are)

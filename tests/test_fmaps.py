@@ -12,6 +12,7 @@ from topomatch.maps import (
     descriptor_coefficients,
     estimate_fmap,
     fmap_from_p2p,
+    folded_fraction,
     invert_p2p,
     multiplication_operators,
     orientation_operators,
@@ -220,3 +221,37 @@ def test_invert_p2p_and_coverage():
     assert p12[1] in (0, 1) and p12[3] in (1, 2)
     assert coverage(p21, 6) == pytest.approx(4 / 6)
     assert coverage(p21, 6, np.array([1, 0, 1, 0, 1, 1.0])) == 1.0
+
+
+def test_folded_fraction_counts_the_area_a_map_turns_over(sym_shape):
+    from scipy.spatial import cKDTree
+
+    V, N = sym_shape.vertices, sym_shape.vertex_normals
+    tgt, perm = shuffled(sym_shape, seed=5)
+    # the true map follows the surface: nothing turned over
+    assert folded_fraction(perm, V, N, tgt.faces, tgt.face_areas) == 0.0
+    # its mirror image reverses every triangle's handedness: all of it turned over
+    refl = cKDTree(V).query(V * np.array([-1.0, 1.0, 1.0]))[1]
+    assert folded_fraction(refl[perm], V, N, tgt.faces, tgt.face_areas) == pytest.approx(1.0)
+    # the mirror map on half of the shape only (x > 0): about half of the area
+    half = np.where(tgt.vertices[:, 0] > 0, refl[perm], perm)
+    f_half = folded_fraction(half, V, N, tgt.faces, tgt.face_areas)
+    assert 0.35 < f_half < 0.65
+    # unweighted: faces counted once each
+    assert 0.35 < folded_fraction(half, V, N, tgt.faces) < 0.65
+    # faces with an unmatched vertex or a degenerate image are left out of count and total
+    cut = perm.copy()
+    cut[tgt.vertices[:, 0] > 0] = -1
+    assert folded_fraction(cut, V, N, tgt.faces) == 0.0
+    assert folded_fraction(np.zeros(tgt.n_vertices, dtype=np.int64), V, N, tgt.faces) == 0.0
+    # bad input: a clear error, not an index error deep inside
+    with pytest.raises(ValueError, match="normals_1"):
+        folded_fraction(perm, V, N[:-1], tgt.faces)
+    with pytest.raises(ValueError, match="faces_2"):
+        folded_fraction(perm, V, N, tgt.faces[:, :2])
+    with pytest.raises(ValueError, match="faces_2"):
+        folded_fraction(perm[:-5], V, N, tgt.faces)
+    with pytest.raises(ValueError, match="shape 1 has"):
+        folded_fraction(perm + len(V), V, N, tgt.faces)
+    with pytest.raises(ValueError, match="face_areas_2"):
+        folded_fraction(perm, V, N, tgt.faces, np.ones(3))

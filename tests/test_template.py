@@ -55,6 +55,8 @@ def test_template_needs_a_template(tmp_path, builtin):
         make_matcher("template", deform={"bogus": 1}).fit([builtin["syn00"]])
     with pytest.raises(ValueError, match="limb_rounds"):
         make_matcher("template", deform={"limb_rounds": -1}).fit([builtin["syn00"]])
+    with pytest.raises(ValueError, match="deform must be a mapping"):
+        make_matcher("template", deform='{"n_starts": 1, "refine_runs": nul}').fit([builtin["syn00"]])
     with pytest.raises(ValueError, match="copy_starts"):
         make_matcher("template", copy_starts=0).fit([builtin["syn00"]])
 

@@ -28,7 +28,10 @@ def _parse_params(items: Sequence[str], methods: Sequence[str] | None = None) ->
             try:
                 value = ast.literal_eval(raw)
             except (ValueError, SyntaxError):
-                value = raw
+                try:  # JSON spellings too: null, true, false inside a dict or list
+                    value = json.loads(raw)
+                except ValueError:
+                    value = raw
         if "." in key:
             m, k = key.split(".", 1)
             out.setdefault(m, {})[k] = value

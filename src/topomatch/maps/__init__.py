@@ -11,7 +11,13 @@ from topomatch.maps.fmap import (
     solve_fmap,
 )
 from topomatch.maps.knn import nearest_neighbors
-from topomatch.maps.operations import compose_p2p, coverage, invert_p2p, transfer_function
+from topomatch.maps.operations import (
+    compose_p2p,
+    coverage,
+    folded_fraction,
+    invert_p2p,
+    transfer_function,
+)
 from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.maps.zoomout import zoomout, zoomout_schedule
 
@@ -23,6 +29,7 @@ __all__ = [
     "estimate_fmap",
     "flip_mirror_patches",
     "fmap_from_p2p",
+    "folded_fraction",
     "invert_p2p",
     "multiplication_operators",
     "nearest_neighbors",

@@ -1,4 +1,4 @@
-"""Operations on point-to-point maps: composition, transfer, inversion, coverage.
+"""Operations on point-to-point maps: composition, transfer, inversion, coverage, folding.
 
 Direction suffixes follow the project convention: ``p2p_21`` has one entry per vertex
 of shape 2 holding a vertex of shape 1, ``-1`` where unmatched.
@@ -11,7 +11,7 @@ import numpy as np
 from topomatch.maps.knn import nearest_neighbors
 from topomatch.typing import FloatArray, IndexArray
 
-__all__ = ["compose_p2p", "coverage", "invert_p2p", "transfer_function"]
+__all__ = ["compose_p2p", "coverage", "folded_fraction", "invert_p2p", "transfer_function"]
 
 
 def _as_map(p2p: object, name: str) -> IndexArray:
@@ -131,3 +131,69 @@ def coverage(p2p_21: IndexArray, n_1: int, weights_1: FloatArray | None = None) 
     if w.shape != (n_1,):
         raise ValueError(f"weights_1 must have shape ({n_1},), got {w.shape}")
     return float(w[hit].sum() / w.sum()) if w.sum() > 0 else 0.0
+
+
+def folded_fraction(
+    p2p_21: IndexArray,
+    vertices_1: FloatArray,
+    normals_1: FloatArray,
+    faces_2: IndexArray,
+    face_areas_2: FloatArray | None = None,
+) -> float:
+    """Fraction of shape 2's area that the map turns over on shape 1.
+
+    Each face of shape 2 whose three vertices map to three distinct vertices of shape 1
+    has an image triangle there; the face is *turned over* when that triangle's normal
+    (in the face's vertex order) points against shape 1's vertex normals at its corners
+    (their sum). A map that follows the surfaces turns over only scattered faces; a
+    region mapped with the wrong handedness or onto a folded place is turned over
+    wholesale (attempt #135 in ``docs/flagship.md``). Faces with an unmatched vertex or a
+    degenerate image are left out of both the count and the total.
+
+    Parameters
+    ----------
+    p2p_21 : ndarray, shape (n2,)
+        A vertex of shape 1 for each vertex of shape 2 (``-1``: unmatched).
+    vertices_1 : ndarray, shape (n1, 3)
+    normals_1 : ndarray, shape (n1, 3)
+        Shape 1's outward vertex normals.
+    faces_2 : ndarray, shape (f2, 3)
+        Shape 2's faces, consistently oriented.
+    face_areas_2 : ndarray, shape (f2,), optional
+        Weights of the faces (their areas); default: every face counts once.
+
+    Returns
+    -------
+    float in [0, 1]
+        ``0.0`` when no face has a proper image.
+    """
+    p = _as_map(p2p_21, "p2p_21")
+    V = np.asarray(vertices_1, dtype=np.float64)
+    N = np.asarray(normals_1, dtype=np.float64)
+    F = np.asarray(faces_2, dtype=np.int64)
+    if V.ndim != 2 or V.shape[1] != 3 or N.shape != V.shape:
+        raise ValueError(f"vertices_1 and normals_1 must both have shape (n1, 3), got {V.shape} and {N.shape}")
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise ValueError(f"faces_2 must have shape (f2, 3), got {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(p)):
+        raise ValueError(f"faces_2 index vertices outside the map's {len(p)} entries")
+    if p.size and p.max() >= len(V):
+        raise ValueError(f"p2p_21 points to vertex {p.max()} but shape 1 has {len(V)} vertices")
+    w = np.ones(len(F)) if face_areas_2 is None else np.asarray(face_areas_2, dtype=np.float64)
+    if w.shape != (len(F),):
+        raise ValueError(f"face_areas_2 must have shape ({len(F)},), got {w.shape}")
+    img = p[F]
+    ok = (img >= 0).all(axis=1)
+    img = img[ok]
+    ok_idx = np.flatnonzero(ok)
+    ok_idx = ok_idx[(img[:, 0] != img[:, 1]) & (img[:, 1] != img[:, 2]) & (img[:, 0] != img[:, 2])]
+    img = p[F[ok_idx]]
+    tri = V[img]
+    n_img = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    proper = np.einsum("ij,ij->i", n_img, n_img) > 0
+    ok_idx, n_img, img = ok_idx[proper], n_img[proper], img[proper]
+    total = float(w[ok_idx].sum())
+    if total <= 0:
+        return 0.0
+    turned = np.einsum("ij,ij->i", n_img, N[img].sum(axis=1)) < 0
+    return float(w[ok_idx][turned].sum() / total)

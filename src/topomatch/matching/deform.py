@@ -96,6 +96,7 @@ from topomatch.maps.fmap import (
     solve_fmap,
 )
 from topomatch.maps.knn import nearest_neighbors
+from topomatch.maps.operations import folded_fraction
 from topomatch.maps.patches import fill_small_patches
 from topomatch.maps.zoomout import _fmap_from_p2p_rows, zoomout_schedule
 from topomatch.matching.base import Correspondence, Matcher
@@ -1340,6 +1341,7 @@ class DeformMatcher(Matcher):
         n_threads: int | None = None,
         background_eigenbasis: bool = True,
         fill_patches: bool = True,
+        orientation_weight: float = 0.0,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1380,6 +1382,7 @@ class DeformMatcher(Matcher):
         self.n_threads = n_threads
         self.background_eigenbasis = background_eigenbasis
         self.fill_patches = fill_patches
+        self.orientation_weight = orientation_weight
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches"):
@@ -1398,6 +1401,8 @@ class DeformMatcher(Matcher):
             raise ValueError(f"swap_threshold must be a number >= 0, got {self.swap_threshold!r}")
         if not isinstance(self.distortion_weight, (int, float, np.integer, np.floating)) or not self.distortion_weight >= 0:
             raise ValueError(f"distortion_weight must be a number >= 0, got {self.distortion_weight!r}")
+        if isinstance(self.orientation_weight, bool) or not isinstance(self.orientation_weight, (int, float, np.integer, np.floating)) or not self.orientation_weight >= 0:
+            raise ValueError(f"orientation_weight must be a number >= 0, got {self.orientation_weight!r}")
         if not isinstance(self.articulated, (int, np.integer)) or self.articulated < 0:
             raise ValueError(f"articulated must be an integer >= 0, got {self.articulated!r}")
         angles = self.bend_angles
@@ -1938,7 +1943,18 @@ class DeformMatcher(Matcher):
             finished.append((run["score"], deformed, info))
             info["run"] = k
         seconds["refinement"] += time.perf_counter() - t2
-        j_best = int(np.argmin([f[0] for f in finished]))  # the first of equals
+        if self.orientation_weight > 0 and len(finished) > 1:
+            # the final choice by fit and by how much of the target the map turns over (#135)
+            keys = []
+            for k, (_, deformed, _info) in zip(chosen, finished):
+                p2p = map_from_deformed(target, deformed, source.faces)
+                folded = folded_fraction(p2p, source.vertices, source.vertex_normals, target.faces, target.face_areas)
+                run = pending[k][1]
+                run["folded"] = folded
+                keys.append(float(run["full_residual"]) + float(self.orientation_weight) * folded)
+            j_best = int(np.argmin(keys))  # the first of equals
+        else:
+            j_best = int(np.argmin([f[0] for f in finished]))  # the first of equals
         _, deformed, info = finished[j_best]
         info["runs"] = [run for _, run, _, _ in pending]
         info["seconds"] = seconds

@@ -290,6 +290,8 @@ class TemplateMatcher(Matcher):
         # with training poses two starts and the best-fitting pose as a source (the best on
         # the training pairs, #86, #90); without, ACCURATE
         base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES, "feature_icp_iterations": FEATURE_ITERATIONS} if getattr(self, "poses_", None) else dict(ACCURATE)
+        if self.deform is not None and not isinstance(self.deform, Mapping):
+            raise ValueError(f"template: deform must be a mapping of deform hyperparameters (e.g. {{'n_starts': 1}}), got {self.deform!r}")
         params = {**base, **(self.deform or {})}
         ws = params.get("working_sizes", WORKING_SIZES)
         posed = bool(base.get("pose_sources") and params.get("pose_sources"))
