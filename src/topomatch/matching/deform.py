@@ -1295,6 +1295,28 @@ class DeformMatcher(Matcher):
         vertices). Training pairs kid00 -> kid01..kid15 (Euclidean x100 on kid00): 2.271
         -> 2.137 (kid14 6.19 -> 5.33, kid15 10.63 -> 10.31; kid03 1.83 -> 1.91 the one
         loss), attempt #113 in ``docs/flagship.md``. ``False``: the map as read off.
+    orientation_weight : float
+        When several registrations are refined, choose among them by the fit residual plus
+        this weight times the share of the target's area that the run's map turns over on
+        the source (:func:`~topomatch.maps.folded_fraction`: a limb laid on the wrong part
+        folds the map there), instead of ``residual + distortion_weight x distortion``.
+        ``0`` (default): by the score. With ``template``'s training poses, six refined
+        registrations per shape and weight 0.1 took kid20 (test) from 19.98 to 5.50 but
+        kid19 from 3.93 to 10.81 and kid23 from 0.96 to 3.83, on near-ties of the folded
+        share (attempt #135, ``docs/flagship.md``).
+    pose_challengers : int
+        With known poses: how many more posed sources (the poses ranked next after the
+        ``pose_sources`` ones) are registered and refined *only to challenge the choice*.
+        The choice is made among the other runs as usual; a refined run (challenger or
+        not) whose map turns over at least ``challenge_margin`` less of the target's area
+        than the chosen run's then replaces it. ``refine_runs`` counts the other runs: the
+        challengers are always refined. ``0`` (default): none. Attempt #136 in
+        ``docs/flagship.md``.
+    challenge_margin : float
+        The share of the target's area (in [0, 1]) by which a run's folded share must be
+        lower than the chosen run's to replace it (``pose_challengers``). Default 0.01:
+        the middle of the range [0.005, 0.015] over which the training pairs' maps are the
+        same (at 0.002 two training shapes switch to worse runs, at 0.02 none switches).
     """
 
     name = "deform"
@@ -1342,6 +1364,8 @@ class DeformMatcher(Matcher):
         background_eigenbasis: bool = True,
         fill_patches: bool = True,
         orientation_weight: float = 0.0,
+        pose_challengers: int = 0,
+        challenge_margin: float = 0.01,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1383,6 +1407,8 @@ class DeformMatcher(Matcher):
         self.background_eigenbasis = background_eigenbasis
         self.fill_patches = fill_patches
         self.orientation_weight = orientation_weight
+        self.pose_challengers = pose_challengers
+        self.challenge_margin = challenge_margin
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches"):
@@ -1446,6 +1472,12 @@ class DeformMatcher(Matcher):
         ps = self.pose_sources
         if isinstance(ps, (bool, np.bool_)) or not isinstance(ps, (int, np.integer)) or ps < 0:
             raise ValueError(f"pose_sources must be an integer >= 0, got {ps!r}")
+        pc = self.pose_challengers
+        if isinstance(pc, (bool, np.bool_)) or not isinstance(pc, (int, np.integer)) or pc < 0:
+            raise ValueError(f"pose_challengers must be an integer >= 0, got {pc!r}")
+        cm = self.challenge_margin
+        if isinstance(cm, (bool, np.bool_)) or not isinstance(cm, (int, float, np.integer, np.floating)) or not 0 <= cm <= 1:
+            raise ValueError(f"challenge_margin must be a number in [0, 1], got {cm!r}")
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
@@ -1851,7 +1883,8 @@ class DeformMatcher(Matcher):
         large = self.through_copies(source, target)
         extra = bool(poses) and self.pose_keep > 0 and self.pose_runs == "extra"
         n_posed = int(self.pose_sources) if poses and self.rigid_frames else 0
-        if not large and self.n_starts == 1 and not extra and not n_posed:
+        n_chal = int(self.pose_challengers) if poses and self.rigid_frames else 0
+        if not large and self.n_starts == 1 and not extra and not n_posed + n_chal:
             return self._register(source, target, settings, poses=poses)
         scale = float(np.sqrt(source.area))
         samples = (self._samples(source, 0), self._samples(target, 0))
@@ -1891,7 +1924,9 @@ class DeformMatcher(Matcher):
                 plain = size is None or self.start_sizes is None or size in self.start_sizes
                 plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
                 plan += [(0, True, None)] if extra and plain else []
-                plan += [(0, False, i) for i in self._posed_sources(src, tgt, src_poses, memo, n_posed)] if n_posed else []
+                ranked = self._posed_sources(src, tgt, src_poses, memo, n_posed + n_chal) if n_posed + n_chal else []
+                plan += [(0, False, i) for i in ranked]
+                challengers = set(ranked[n_posed:])  # the next-ranked poses: registered only to challenge the choice
                 for start, with_poses, posed in plan:
                     key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
                     if key in done:  # e.g. both meshes within two sizes
@@ -1905,7 +1940,7 @@ class DeformMatcher(Matcher):
                     home = source.vertices if posed is None else poses[posed][1]
                     run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
                            "source_pose": None if posed is None else src_poses[posed][0],
-                           "vertices": (src.n_vertices, tgt.n_vertices)}
+                           "vertices": (src.n_vertices, tgt.n_vertices), "challenger": posed in challengers}
                     submitted.append((v, run, back, home))
             submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
         for v, run, back, home in submitted:
@@ -1917,9 +1952,12 @@ class DeformMatcher(Matcher):
                         "hypothesis": label if run["source_pose"] is None else f"posed {run['source_pose']}: {label}"})
             pending.append((v, run, back, home))
         seconds["hypotheses_and_verification"] += time.perf_counter() - t_verify - seconds["decimation"]
-        n_refine = len(pending) if self.refine_runs is None else min(int(self.refine_runs), len(pending))
-        lead = np.argsort([run["verified_score"] for _, run, _, _ in pending], kind="stable")[:n_refine]
-        chosen = sorted(int(i) for i in lead)  # in plan order: equal scores go to the smaller copy, the earlier start
+        # the challengers are always refined; refine_runs counts the others
+        contenders = [k for k, (_, run, _, _) in enumerate(pending) if not run["challenger"]]
+        n_refine = len(contenders) if self.refine_runs is None else min(int(self.refine_runs), len(contenders))
+        lead = [contenders[i] for i in np.argsort([pending[k][1]["verified_score"] for k in contenders], kind="stable")[:n_refine]]
+        # in plan order: equal scores go to the smaller copy, the earlier start
+        chosen = sorted({int(i) for i in lead} | {k for k, (_, run, _, _) in enumerate(pending) if run["challenger"]})
         t2 = time.perf_counter()
         if self._n_threads() > 1 and len(chosen) > 1:
             # side by side, one thread each (a refinement's result does not depend on its threads;
@@ -1943,20 +1981,30 @@ class DeformMatcher(Matcher):
             finished.append((run["score"], deformed, info))
             info["run"] = k
         seconds["refinement"] += time.perf_counter() - t2
-        if self.orientation_weight > 0 and len(finished) > 1:
-            # the final choice by fit and by how much of the target the map turns over (#135)
-            keys = []
-            for k, (_, deformed, _info) in zip(chosen, finished):
+        # the choice among the refined contenders: by score, or by fit and folding (#135)
+        base = [j for j, k in enumerate(chosen) if not pending[k][1]["challenger"]]
+        folded: dict[int, float] = {}
+        if (self.orientation_weight > 0 and len(base) > 1) or len(base) < len(chosen):
+            for j, (k, (_, deformed, _info)) in enumerate(zip(chosen, finished)):
                 p2p = map_from_deformed(target, deformed, source.faces)
-                folded = folded_fraction(p2p, source.vertices, source.vertex_normals, target.faces, target.face_areas)
-                run = pending[k][1]
-                run["folded"] = folded
-                keys.append(float(run["full_residual"]) + float(self.orientation_weight) * folded)
-            j_best = int(np.argmin(keys))  # the first of equals
+                folded[j] = folded_fraction(p2p, source.vertices, source.vertex_normals, target.faces, target.face_areas)
+                pending[k][1]["folded"] = folded[j]
+        if self.orientation_weight > 0 and len(base) > 1:
+            keys = [float(pending[chosen[j]][1]["full_residual"]) + float(self.orientation_weight) * folded[j] for j in base]
         else:
-            j_best = int(np.argmin([f[0] for f in finished]))  # the first of equals
+            keys = [finished[j][0] for j in base]
+        j_best = base[int(np.argmin(keys))]  # the first of equals
+        challenged = None
+        if len(base) < len(chosen):
+            # a refined run whose map turns over clearly less of the target replaces the choice (#136)
+            j_least = min(folded, key=lambda j: (folded[j], j))
+            if folded[j_least] < folded[j_best] - float(self.challenge_margin):
+                challenged = {"chosen": chosen[j_best], "replaced_by": chosen[j_least]}
+                j_best = j_least
         _, deformed, info = finished[j_best]
         info["runs"] = [run for _, run, _, _ in pending]
+        if challenged is not None:
+            info["challenged"] = challenged
         info["seconds"] = seconds
         return deformed, info
 
