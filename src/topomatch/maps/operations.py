@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from topomatch.maps.knn import nearest_neighbors
+from topomatch.mesh.geometry import face_normals
 from topomatch.typing import FloatArray, IndexArray
 
 __all__ = ["compose_p2p", "coverage", "folded_fraction", "invert_p2p", "transfer_function"]
@@ -182,18 +183,14 @@ def folded_fraction(
     w = np.ones(len(F)) if face_areas_2 is None else np.asarray(face_areas_2, dtype=np.float64)
     if w.shape != (len(F),):
         raise ValueError(f"face_areas_2 must have shape ({len(F)},), got {w.shape}")
-    img = p[F]
-    ok = (img >= 0).all(axis=1)
-    img = img[ok]
-    ok_idx = np.flatnonzero(ok)
-    ok_idx = ok_idx[(img[:, 0] != img[:, 1]) & (img[:, 1] != img[:, 2]) & (img[:, 0] != img[:, 2])]
-    img = p[F[ok_idx]]
-    tri = V[img]
-    n_img = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    proper = np.einsum("ij,ij->i", n_img, n_img) > 0
-    ok_idx, n_img, img = ok_idx[proper], n_img[proper], img[proper]
-    total = float(w[ok_idx].sum())
+    # a repeated image vertex gives an exactly zero normal, like any other degenerate image
+    idx = np.flatnonzero((p[F] >= 0).all(axis=1))
+    img = p[F[idx]]
+    n_img = face_normals(V, img)
+    proper = n_img.any(axis=1)
+    idx, n_img, img = idx[proper], n_img[proper], img[proper]
+    total = float(w[idx].sum())
     if total <= 0:
         return 0.0
     turned = np.einsum("ij,ij->i", n_img, N[img].sum(axis=1)) < 0
-    return float(w[ok_idx][turned].sum() / total)
+    return float(w[idx][turned].sum() / total)

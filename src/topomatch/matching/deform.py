@@ -1986,13 +1986,14 @@ class DeformMatcher(Matcher):
         seconds["refinement"] += time.perf_counter() - t2
         # the choice among the refined contenders: by score, or by fit and folding (#135)
         base = [j for j, k in enumerate(chosen) if not pending[k][1]["challenger"]]
+        weighted = self.orientation_weight > 0 and len(base) > 1
         folded: dict[int, float] = {}
-        if (self.orientation_weight > 0 and len(base) > 1) or len(base) < len(chosen):
+        if weighted or len(base) < len(chosen):
             for j, (k, (_, deformed, _info)) in enumerate(zip(chosen, finished)):
                 p2p = map_from_deformed(target, deformed, source.faces)
                 folded[j] = folded_fraction(p2p, source.vertices, source.vertex_normals, target.faces, target.face_areas)
                 pending[k][1]["folded"] = folded[j]
-        if self.orientation_weight > 0 and len(base) > 1:
+        if weighted:
             keys = [float(pending[chosen[j]][1]["full_residual"]) + float(self.orientation_weight) * folded[j] for j in base]
         else:
             keys = [finished[j][0] for j in base]
@@ -2000,7 +2001,7 @@ class DeformMatcher(Matcher):
         challenged = None
         if len(base) < len(chosen):
             # a refined run whose map turns over clearly less of the target replaces the choice (#136)
-            j_least = min(folded, key=lambda j: (folded[j], j))
+            j_least = min(folded, key=folded.__getitem__)  # the first of equals
             if folded[j_least] < folded[j_best] - float(self.challenge_margin):
                 challenged = {"chosen": chosen[j_best], "replaced_by": chosen[j_least]}
                 j_best = j_least
