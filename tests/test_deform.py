@@ -848,22 +848,34 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
         with pytest.raises(ValueError, match="orientation_weight"):
             make_matcher("deform", orientation_weight=bad).register(src, tgt)
     # pose_challengers: the next-ranked pose registered as the source only to challenge the choice
-    kept, info_k = make_matcher("deform", **fast, pose_challengers=1, challenge_margin=1.0).register(src, tgt, poses=poses)
+    # (challenge_above=0: whatever the choice's folded share)
+    kept, info_k = make_matcher("deform", **fast, pose_challengers=1, challenge_margin=1.0, challenge_above=0.0).register(src, tgt, poses=poses)
     runs_k = info_k["runs"]
     assert [(r["source_pose"], r["challenger"], r["refined"]) for r in runs_k] == [(None, False, True), ("b", True, True)]
     # the same registrations as with pose_sources=1; a margin of the whole area never replaces the choice
     assert [r["score"] for r in runs_k] == [r["score"] for r in runs]
-    assert info_k["run"] == 0 and "challenged" not in info_k and np.array_equal(kept, base_deformed)
+    assert info_k["run"] == 0 and "replaced" not in info_k["challenge"] and np.array_equal(kept, base_deformed)
     assert all(0 <= r["folded"] <= 1 for r in runs_k)
+    assert info_k["challenge"]["registered"] and info_k["challenge"]["folded"] == runs_k[0]["folded"]
     # with no margin, the challenger replaces the choice exactly when its map turns over less of the target
-    _, info_0 = make_matcher("deform", **fast, pose_challengers=1, challenge_margin=0.0).register(src, tgt, poses=poses)
+    _, info_0 = make_matcher("deform", **fast, pose_challengers=1, challenge_margin=0.0, challenge_above=0.0).register(src, tgt, poses=poses)
     f0, f1 = (r["folded"] for r in info_0["runs"])
-    assert info_0["run"] == (1 if f1 < f0 else 0) and ("challenged" in info_0) == (f1 < f0)
+    assert info_0["run"] == (1 if f1 < f0 else 0) and ("replaced" in info_0["challenge"]) == (f1 < f0)
+    # challenge_above: the challenger is registered only when the choice's map turns over at least
+    # that share of the target; below it, the default's registration and choice
+    gate = f0 + 1e-9
+    below, info_b = make_matcher("deform", **fast, pose_challengers=1, challenge_margin=0.0, challenge_above=gate).register(src, tgt, poses=poses)
+    assert [(r["source_pose"], r["challenger"]) for r in info_b["runs"]] == [(None, False)]
+    assert info_b["challenge"] == {"folded": f0, "above": gate, "registered": False} and np.array_equal(below, base_deformed)
+    _, info_a = make_matcher("deform", **fast, pose_challengers=1, challenge_margin=0.0, challenge_above=f0).register(src, tgt, poses=poses)
+    assert info_a["challenge"]["registered"] and info_a["run"] == info_0["run"]
+    assert [r["folded"] for r in info_a["runs"]] == [f0, f1]
     # refine_runs counts the contenders only: the challenger is always refined
-    _, info_r = make_matcher("deform", **fast, n_starts=2, pose_challengers=1, refine_runs=1).register(src, tgt, poses=poses)
+    _, info_r = make_matcher("deform", **fast, n_starts=2, pose_challengers=1, refine_runs=1, challenge_above=0.0).register(src, tgt, poses=poses)
     flags = [(r["challenger"], r["refined"]) for r in info_r["runs"]]
     assert flags[2] == (True, True) and sorted(f[1] for f in flags[:2]) == [False, True]
-    for name, bad in (("pose_challengers", -1), ("pose_challengers", True), ("challenge_margin", -0.1), ("challenge_margin", 2.0), ("challenge_margin", True)):
+    for name, bad in (("pose_challengers", -1), ("pose_challengers", True), ("challenge_margin", -0.1), ("challenge_margin", 2.0),
+                      ("challenge_margin", True), ("challenge_above", -0.01), ("challenge_above", 1.5), ("challenge_above", "0.05")):
         with pytest.raises(ValueError, match=name):
             make_matcher("deform", **{name: bad}).register(src, tgt)
     # without poses there is nothing to register in a pose: one plain registration

@@ -119,6 +119,12 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert sum(r["refined"] for r in runs) == REFINED_RUNS == 2 and runs[c.info["runs"]["target"]["kept"]]["refined"]
     lead = sorted(np.argsort([r["verified_score"] for r in runs], kind="stable")[:2].tolist())
     assert [i for i, r in enumerate(runs) if r["refined"]] == lead
+    # challengers that the kept map does not call for (challenge_above): the same map, the gate recorded
+    gated = copy.copy(fitted).set_params(deform={**FAST, "pose_challengers": 1, "challenge_above": 1.0}).match(src, tgt)
+    np.testing.assert_array_equal(gated.p2p_21, c.p2p_21)
+    record = gated.info["runs"]["target"]
+    assert record["challenge"]["registered"] is False and record["challenge"]["above"] == 1.0
+    assert [r["challenger"] for r in record["runs"]] == [False] * 3 and "challenge" not in c.info["runs"]["target"]
     # through working copies the template as it is runs at the smallest copy size only (the posed one at every size)
     assert fitted._deformer().start_sizes == (min(WORKING_SIZES),)
     other = copy.copy(fitted).set_params(deform={**FAST, "working_sizes": (12000, 9000)})

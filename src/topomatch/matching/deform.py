@@ -1307,10 +1307,13 @@ class DeformMatcher(Matcher):
     pose_challengers : int
         With known poses: how many more posed sources (the poses ranked next after the
         ``pose_sources`` ones) are registered and refined *only to challenge the choice*.
-        The choice is made among the other runs as usual; a refined run (challenger or
-        not) whose map turns over at least ``challenge_margin`` less of the target's area
-        than the chosen run's then replaces it. ``refine_runs`` counts the other runs: the
-        challengers are always refined. ``0`` (default): none. Attempt #136 in
+        The choice is made among the other runs as usual; when the chosen run's map turns
+        over at least ``challenge_above`` of the target's area, the challengers are
+        registered, and a refined run (challenger or not) whose map turns over at least
+        ``challenge_margin`` less than the chosen run's replaces it. ``refine_runs``
+        counts the other runs: the challengers are always refined. ``info["challenge"]``
+        records the chosen run's folded share, whether the challengers were registered
+        and a replacement. ``0`` (default): none. Attempts #136-#137 in
         ``docs/flagship.md``.
     challenge_margin : float
         The share of the target's area (in [0, 1]) by which a run's folded share must be
@@ -1320,6 +1323,14 @@ class DeformMatcher(Matcher):
         ``benchmarks/template_novel_poses.py --k 2``) are the same, kid15's at ``K = 2``
         replaced (19.30 -> 12.39); at 0.002 kid06 and kid13 also switch, to worse runs, and
         at 0.02 nothing does.
+    challenge_above : float
+        The folded share (in [0, 1]) of the chosen run's map at and above which the
+        challengers are registered (``pose_challengers``); below it, the choice stands and
+        the registration costs what it costs without challengers. Default 0.06: just
+        above the folded shares of ``template``'s chosen maps on the 15 training shapes
+        with their own pose left out (0.018-0.055); with the two nearest training poses
+        also left out (``K = 2``), only kid14 (0.063) and kid15 (0.104, the one map a
+        challenger replaces) reach it. ``0``: always (attempt #136; #137 gates it).
     """
 
     name = "deform"
@@ -1369,6 +1380,7 @@ class DeformMatcher(Matcher):
         orientation_weight: float = 0.0,
         pose_challengers: int = 0,
         challenge_margin: float = 0.01,
+        challenge_above: float = 0.06,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1412,6 +1424,7 @@ class DeformMatcher(Matcher):
         self.orientation_weight = orientation_weight
         self.pose_challengers = pose_challengers
         self.challenge_margin = challenge_margin
+        self.challenge_above = challenge_above
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches"):
@@ -1481,6 +1494,9 @@ class DeformMatcher(Matcher):
         cm = self.challenge_margin
         if isinstance(cm, (bool, np.bool_)) or not isinstance(cm, (int, float, np.integer, np.floating)) or not 0 <= cm <= 1:
             raise ValueError(f"challenge_margin must be a number in [0, 1], got {cm!r}")
+        ca = self.challenge_above
+        if isinstance(ca, (bool, np.bool_)) or not isinstance(ca, (int, float, np.integer, np.floating)) or not 0 <= ca <= 1:
+            raise ValueError(f"challenge_above must be a number in [0, 1], got {ca!r}")
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
@@ -1892,9 +1908,6 @@ class DeformMatcher(Matcher):
         scale = float(np.sqrt(source.area))
         samples = (self._samples(source, 0), self._samples(target, 0))
         tree = PointTree(target.vertices)
-        # every registration is verified first (steps 1-2); the refine_runs best by their
-        # best verified registration's full-mesh score are then refined (steps 3-6)
-        pending: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
         done: set[tuple[int, int, int, bool, int | None]] = set()
         seconds = {"decimation": 0.0, "hypotheses_and_verification": 0.0, "refinement": 0.0}
 
@@ -1910,10 +1923,12 @@ class DeformMatcher(Matcher):
         # run's samples and hypotheses while the pool verifies the previous ones' (the
         # results do not depend on it; each verification runs on one BLAS thread)
         shared = self._n_threads() > 1 and self.accept_residual <= 0
-        submitted: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
-        t_verify = time.perf_counter()
-        with (one_blas_thread() if shared else nullcontext()), (ThreadPoolExecutor(max_workers=self._n_threads()) if shared else nullcontext()) as pool:
-            for size in [int(x) for x in self.working_sizes] if large else [None]:
+        sizes = [int(x) for x in self.working_sizes] if large else [None]
+        prepared: dict[int | None, tuple[TriangleMesh, TriangleMesh, Sequence[tuple[str, FloatArray]], dict[str, Any], FloatArray | None, list[int]]] = {}
+
+        def prepare(size: int | None) -> tuple[TriangleMesh, TriangleMesh, Sequence[tuple[str, FloatArray]], dict[str, Any], FloatArray | None, list[int]]:
+            """The working copies of one size, the poses carried to them and the ranked posed sources (made once)."""
+            if size not in prepared:
                 t0 = time.perf_counter()
                 src, tgt = (source, target) if size is None else (decimate(source, size), decimate(target, size))
                 src_poses, memo = poses, {}  # the poses are aligned once per size (on start 0's samples)
@@ -1922,93 +1937,129 @@ class DeformMatcher(Matcher):
                     carry = surface_weights(src.vertices, source)
                     src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
                 seconds["decimation"] += time.perf_counter() - t0
-                # (start, with the poses, posed source): "extra" registers the poses apart,
-                # from start 0; each posed source (an index into poses) is registered from start 0
-                plain = size is None or self.start_sizes is None or size in self.start_sizes
-                plan: list[tuple[int, bool, int | None]] = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
-                plan += [(0, True, None)] if extra and plain else []
+                t0 = time.perf_counter()
                 ranked = self._posed_sources(src, tgt, src_poses, memo, n_posed + n_chal) if n_posed + n_chal else []
-                plan += [(0, False, i) for i in ranked]
-                challengers = set(ranked[n_posed:])  # the next-ranked poses: registered only to challenge the choice
-                for start, with_poses, posed in plan:
-                    key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
-                    if key in done:  # e.g. both meshes within two sizes
-                        continue
-                    done.add(key)
-                    rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
-                    # the posed copy is the source's surface in another pose: its intrinsic data
-                    # (spectral hypotheses, local features) are the source's own
-                    v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool,
-                                       intrinsic=None if posed is None else src)
-                    home = source.vertices if posed is None else poses[posed][1]
-                    run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
-                           "source_pose": None if posed is None else src_poses[posed][0],
-                           "vertices": (src.n_vertices, tgt.n_vertices), "challenger": posed in challengers}
-                    submitted.append((v, run, back, home))
-            submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
-        for v, run, back, home in submitted:
-            best = v.results[v.order[0]]
-            _, verified = carried(best.deformed, v, back, home)
-            label = v.hyps[v.order[0]].label
-            run.update({"verified_score": verified + self.distortion_weight * float(best.distortion),
-                        "refined": False, "full_residual": None, "score": None,
-                        "hypothesis": label if run["source_pose"] is None else f"posed {run['source_pose']}: {label}"})
-            pending.append((v, run, back, home))
-        seconds["hypotheses_and_verification"] += time.perf_counter() - t_verify - seconds["decimation"]
-        # the challengers are always refined; refine_runs counts the others
-        contenders = [k for k, (_, run, _, _) in enumerate(pending) if not run["challenger"]]
-        n_refine = len(contenders) if self.refine_runs is None else min(int(self.refine_runs), len(contenders))
-        lead = [contenders[i] for i in np.argsort([pending[k][1]["verified_score"] for k in contenders], kind="stable")[:n_refine]]
-        # in plan order: equal scores go to the smaller copy, the earlier start
-        chosen = sorted({int(i) for i in lead} | {k for k, (_, run, _, _) in enumerate(pending) if run["challenger"]})
-        t2 = time.perf_counter()
-        if self._n_threads() > 1 and len(chosen) > 1:
-            # side by side, one thread each (a refinement's result does not depend on its threads;
-            # alone, it keeps about 1.3 of two cores busy)
-            solo = copy.copy(self)
-            solo.n_threads = 1
-            with one_blas_thread():
-                refined = _thread_map(lambda k: solo._refined(pending[k][0]), chosen, self._n_threads())
-        else:
-            refined = [self._refined(pending[k][0]) for k in chosen]
-        finished: list[tuple[float, FloatArray, dict[str, Any]]] = []
-        for k, (deformed, info) in zip(chosen, refined):
-            v, run, back, home = pending[k]
-            if run["source_pose"] is not None:
-                info["hypothesis"] = f"posed {run['source_pose']}: {info['hypothesis']}"
-            deformed, residual = carried(deformed, v, back, home)
-            run.update(refined=True, full_residual=residual, score=residual + self.distortion_weight * float(info["distortion"]),
-                       hypothesis=info["hypothesis"])
-            if run["working_size"] is not None:
-                info["working_vertices"] = run["vertices"]
-            finished.append((run["score"], deformed, info))
-            info["run"] = k
-        seconds["refinement"] += time.perf_counter() - t2
-        # the choice among the refined contenders: by score, or by fit and folding (#135)
-        base = [j for j, k in enumerate(chosen) if not pending[k][1]["challenger"]]
-        weighted = self.orientation_weight > 0 and len(base) > 1
+                seconds["hypotheses_and_verification"] += time.perf_counter() - t0
+                prepared[size] = (src, tgt, src_poses, memo, back, ranked)
+            return prepared[size]
+
+        def verify(challengers: bool) -> list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]]:
+            """Verify the contenders' runs (``challengers=False``) or the challengers' (``True``), in plan order."""
+            t_verify, counted = time.perf_counter(), seconds["decimation"] + seconds["hypotheses_and_verification"]
+            submitted: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
+            with (one_blas_thread() if shared else nullcontext()), (ThreadPoolExecutor(max_workers=self._n_threads()) if shared else nullcontext()) as pool:
+                for size in sizes:
+                    src, tgt, src_poses, memo, back, ranked = prepare(size)
+                    # (start, with the poses, posed source): "extra" registers the poses apart,
+                    # from start 0; each posed source (an index into poses) is registered from start 0
+                    if challengers:  # the next-ranked poses: registered only to challenge the choice
+                        plan: list[tuple[int, bool, int | None]] = [(0, False, i) for i in ranked[n_posed:]]
+                    else:
+                        plain = size is None or self.start_sizes is None or size in self.start_sizes
+                        plan = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
+                        plan += [(0, True, None)] if extra and plain else []
+                        plan += [(0, False, i) for i in ranked[:n_posed]]
+                    for start, with_poses, posed in plan:
+                        key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
+                        if key in done:  # e.g. both meshes within two sizes
+                            continue
+                        done.add(key)
+                        rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
+                        # the posed copy is the source's surface in another pose: its intrinsic data
+                        # (spectral hypotheses, local features) are the source's own
+                        v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool,
+                                           intrinsic=None if posed is None else src)
+                        home = source.vertices if posed is None else poses[posed][1]
+                        run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
+                               "source_pose": None if posed is None else src_poses[posed][0],
+                               "vertices": (src.n_vertices, tgt.n_vertices), "challenger": challengers}
+                        submitted.append((v, run, back, home))
+                submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
+            out = []
+            for v, run, back, home in submitted:
+                best = v.results[v.order[0]]
+                _, verified = carried(best.deformed, v, back, home)
+                label = v.hyps[v.order[0]].label
+                run.update({"verified_score": verified + self.distortion_weight * float(best.distortion),
+                            "refined": False, "full_residual": None, "score": None,
+                            "hypothesis": label if run["source_pose"] is None else f"posed {run['source_pose']}: {label}"})
+                out.append((v, run, back, home))
+            # the time spent here, less what prepare counted meanwhile
+            elapsed = time.perf_counter() - t_verify - (seconds["decimation"] + seconds["hypotheses_and_verification"] - counted)
+            seconds["hypotheses_and_verification"] += elapsed
+            return out
+
+        finished: dict[int, tuple[float, FloatArray, dict[str, Any]]] = {}
+
+        def refine(ks: list[int]) -> None:
+            """Refine the runs ``pending[k]`` into ``finished[k]`` (their score, the source's vertices, the info)."""
+            t2 = time.perf_counter()
+            if self._n_threads() > 1 and len(ks) > 1:
+                # side by side, one thread each (a refinement's result does not depend on its threads;
+                # alone, it keeps about 1.3 of two cores busy)
+                solo = copy.copy(self)
+                solo.n_threads = 1
+                with one_blas_thread():
+                    refined = _thread_map(lambda k: solo._refined(pending[k][0]), ks, self._n_threads())
+            else:
+                refined = [self._refined(pending[k][0]) for k in ks]
+            for k, (deformed, info) in zip(ks, refined):
+                v, run, back, home = pending[k]
+                if run["source_pose"] is not None:
+                    info["hypothesis"] = f"posed {run['source_pose']}: {info['hypothesis']}"
+                deformed, residual = carried(deformed, v, back, home)
+                run.update(refined=True, full_residual=residual, score=residual + self.distortion_weight * float(info["distortion"]),
+                           hypothesis=info["hypothesis"])
+                if run["working_size"] is not None:
+                    info["working_vertices"] = run["vertices"]
+                info["run"] = k
+                finished[k] = (run["score"], deformed, info)
+            seconds["refinement"] += time.perf_counter() - t2
+
         folded: dict[int, float] = {}
-        if weighted or len(base) < len(chosen):
-            for j, (k, (_, deformed, _info)) in enumerate(zip(chosen, finished)):
-                p2p = map_from_deformed(target, deformed, source.faces)
-                folded[j] = folded_fraction(p2p, source.vertices, source.vertex_normals, target.faces, target.face_areas)
-                pending[k][1]["folded"] = folded[j]
-        if weighted:
-            keys = [float(pending[chosen[j]][1]["full_residual"]) + float(self.orientation_weight) * folded[j] for j in base]
+
+        def fold(ks: list[int]) -> None:
+            """The share of the target's area that each refined run's map turns over on the source."""
+            for k in ks:
+                if k not in folded:
+                    p2p = map_from_deformed(target, finished[k][1], source.faces)
+                    folded[k] = folded_fraction(p2p, source.vertices, source.vertex_normals, target.faces, target.face_areas)
+                    pending[k][1]["folded"] = folded[k]
+
+        # every registration is verified first (steps 1-2); the refine_runs best by their
+        # best verified registration's full-mesh score are then refined (steps 3-6)
+        pending: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = verify(challengers=False)
+        n_refine = len(pending) if self.refine_runs is None else min(int(self.refine_runs), len(pending))
+        # in plan order: equal scores go to the smaller copy, the earlier start
+        chosen = sorted(int(i) for i in np.argsort([run["verified_score"] for _, run, _, _ in pending], kind="stable")[:n_refine])
+        refine(chosen)
+        # the choice among the refined runs: by score, or by fit and folding (#135)
+        if self.orientation_weight > 0 and len(chosen) > 1:
+            fold(chosen)
+            keys = [float(pending[k][1]["full_residual"]) + float(self.orientation_weight) * folded[k] for k in chosen]
         else:
-            keys = [finished[j][0] for j in base]
-        j_best = base[int(np.argmin(keys))]  # the first of equals
-        challenged = None
-        if len(base) < len(chosen):
-            # a refined run whose map turns over clearly less of the target replaces the choice (#136)
-            j_least = min(folded, key=folded.__getitem__)  # the first of equals
-            if folded[j_least] < folded[j_best] - float(self.challenge_margin):
-                challenged = {"chosen": chosen[j_best], "replaced_by": chosen[j_least]}
-                j_best = j_least
-        _, deformed, info = finished[j_best]
+            keys = [finished[k][0] for k in chosen]
+        k_best = chosen[int(np.argmin(keys))]  # the first of equals
+        challenge: dict[str, Any] | None = None
+        if n_chal and len(poses) > n_posed:
+            # challengers (#136): registered only when the choice's map turns over at least
+            # challenge_above of the target; then a refined run whose map turns over clearly
+            # less (challenge_margin) replaces the choice
+            fold(chosen)
+            challenge = {"folded": folded[k_best], "above": float(self.challenge_above), "registered": folded[k_best] >= self.challenge_above}
+            if challenge["registered"]:
+                first = len(pending)
+                pending += verify(challengers=True)
+                refine(list(range(first, len(pending))))
+                fold(list(range(first, len(pending))))
+            k_least = min(folded, key=folded.__getitem__)  # the first of equals, in plan order
+            if folded[k_least] < folded[k_best] - float(self.challenge_margin):
+                challenge["replaced"] = {"chosen": k_best, "by": k_least}
+                k_best = k_least
+        _, deformed, info = finished[k_best]
         info["runs"] = [run for _, run, _, _ in pending]
-        if challenged is not None:
-            info["challenged"] = challenged
+        if challenge is not None:
+            info["challenge"] = challenge
         info["seconds"] = seconds
         return deformed, info
 

@@ -173,6 +173,14 @@ def mirrored_pose(vertices: FloatArray, sym: IndexArray) -> FloatArray:
     return V[sym] * np.array([-1.0, 1.0, 1.0])
 
 
+def _runs_record(info: dict[str, Any]) -> dict[str, Any]:
+    """A registration's runs as ``template`` reports them: the run kept, every run, the challenge if any."""
+    record = {"kept": info["run"], "runs": info["runs"]}
+    if "challenge" in info:
+        record["challenge"] = info["challenge"]
+    return record
+
+
 class TemplateMatcher(Matcher):
     """Register a clean template onto both shapes and compose the two maps.
 
@@ -445,7 +453,7 @@ class TemplateMatcher(Matcher):
             t2m, repaired["target"] = self._repaired(t2m, target)
             hyp["target"] = info_t["hypothesis"]
             if "runs" in info_t:
-                runs["target"] = {"kept": info_t["run"], "runs": info_t["runs"]}
+                runs["target"] = _runs_record(info_t)
         if self._is_template(source):
             p2p = t2m
             status["source"] = "is the template"
@@ -458,6 +466,6 @@ class TemplateMatcher(Matcher):
             p2p = compose_through_template(t2m, m2s)
             hyp["source"] = info_s["hypothesis"]
             if "runs" in info_s:
-                runs["source"] = {"kept": info_s["run"], "runs": info_s["runs"]}
+                runs["source"] = _runs_record(info_s)
         info = {"template": self.template_name_, "registrations": status, "hypotheses": hyp, "runs": runs, "repaired": repaired, "seconds": time.perf_counter() - t0}
         return Correspondence(p2p, info=info)
