@@ -68,7 +68,7 @@ from dataclasses import dataclass
 from functools import partial
 from itertools import chain, product
 from types import MappingProxyType
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -168,6 +168,21 @@ class _Verified:
     """The mesh whose intrinsic data (the spectral hypotheses, the feature stage's local
     features) stand for the source's: the source as it is for a registration of the source
     in a pose (``pose_sources``); ``None``: the source."""
+
+
+class _Working(NamedTuple):
+    """One working size of :meth:`DeformMatcher.register`, made once and shared by the contenders' and the challengers' runs."""
+
+    source: TriangleMesh
+    target: TriangleMesh
+    poses: Sequence[tuple[str, FloatArray]]
+    """The source's known poses carried to the source's copy."""
+    memo: dict[str, Any]
+    """The poses' alignments to the target (on start 0's samples)."""
+    back: FloatArray | None
+    """Barycentric weights from the source's vertices to its copy's (``None``: no copy)."""
+    ranked: list[int]
+    """The posed sources, best-fitting first: ``pose_sources`` of them, then the challengers."""
 
 
 @dataclass
@@ -1924,9 +1939,9 @@ class DeformMatcher(Matcher):
         # results do not depend on it; each verification runs on one BLAS thread)
         shared = self._n_threads() > 1 and self.accept_residual <= 0
         sizes = [int(x) for x in self.working_sizes] if large else [None]
-        prepared: dict[int | None, tuple[TriangleMesh, TriangleMesh, Sequence[tuple[str, FloatArray]], dict[str, Any], FloatArray | None, list[int]]] = {}
+        prepared: dict[int | None, _Working] = {}
 
-        def prepare(size: int | None) -> tuple[TriangleMesh, TriangleMesh, Sequence[tuple[str, FloatArray]], dict[str, Any], FloatArray | None, list[int]]:
+        def prepare(size: int | None) -> _Working:
             """The working copies of one size, the poses carried to them and the ranked posed sources (made once)."""
             if size not in prepared:
                 t0 = time.perf_counter()
@@ -1940,7 +1955,7 @@ class DeformMatcher(Matcher):
                 t0 = time.perf_counter()
                 ranked = self._posed_sources(src, tgt, src_poses, memo, n_posed + n_chal) if n_posed + n_chal else []
                 seconds["hypotheses_and_verification"] += time.perf_counter() - t0
-                prepared[size] = (src, tgt, src_poses, memo, back, ranked)
+                prepared[size] = _Working(src, tgt, src_poses, memo, back, ranked)
             return prepared[size]
 
         def verify(challengers: bool) -> list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]]:
