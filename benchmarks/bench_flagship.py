@@ -41,6 +41,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -69,11 +70,11 @@ def pyfm_zoomout(source: TriangleMesh, target: TriangleMesh) -> np.ndarray:
     return np.asarray(fm.get_p2p(FM=C), dtype=np.int64)
 
 
-def ours(name: str, params: dict | None = None, training: list | None = None):
-    """Our matcher ``name`` as a timed call; one that needs fitting is fitted on ``training`` first (not timed)."""
+def ours(name: str, params: dict | None = None, training: Callable[[], list] | None = None):
+    """Our matcher ``name`` as a timed call; one that needs fitting is fitted on ``training()`` first (not timed)."""
     matcher = make_matcher(name, **(params or {}))
     if matcher.requires_fit:
-        matcher.fit(training or [])
+        matcher.fit(training() if training is not None else [])
 
     def run(source: TriangleMesh, target: TriangleMesh) -> np.ndarray:
         # a matcher that keeps each shape's registration (template) registers afresh on every call
@@ -117,7 +118,9 @@ def main() -> None:
     if unknown:
         ap.error(f"--param for {', '.join(unknown)}, which --methods does not list")
     # trained methods (template) learn from the reference shape and the training split, as in topomatch bench
-    training = [coll[n] for n in coll.present([coll.reference, *coll.splits.get("train", [])])]
+    def training() -> list:
+        return [coll[n] for n in coll.present([coll.reference, *coll.splits.get("train", [])])]
+
     runners = {m: (pyfm_zoomout if m == "pyfm-zoomout" else ours(m.split("@")[0], params.get(m), training)) for m in methods}
     machine = _versions()
     print(f"{len(pairs)} pairs ({args.protocol}, {args.split}, {args.resolution} res); methods: {', '.join(methods)}")

@@ -1506,12 +1506,10 @@ class DeformMatcher(Matcher):
         pc = self.pose_challengers
         if isinstance(pc, (bool, np.bool_)) or not isinstance(pc, (int, np.integer)) or pc < 0:
             raise ValueError(f"pose_challengers must be an integer >= 0, got {pc!r}")
-        cm = self.challenge_margin
-        if isinstance(cm, (bool, np.bool_)) or not isinstance(cm, (int, float, np.integer, np.floating)) or not 0 <= cm <= 1:
-            raise ValueError(f"challenge_margin must be a number in [0, 1], got {cm!r}")
-        ca = self.challenge_above
-        if isinstance(ca, (bool, np.bool_)) or not isinstance(ca, (int, float, np.integer, np.floating)) or not 0 <= ca <= 1:
-            raise ValueError(f"challenge_above must be a number in [0, 1], got {ca!r}")
+        for name in ("challenge_margin", "challenge_above"):  # shares of the target's area
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) or not 0 <= v <= 1:
+                raise ValueError(f"{name} must be a number in [0, 1], got {v!r}")
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
@@ -1952,15 +1950,13 @@ class DeformMatcher(Matcher):
                     carry = surface_weights(src.vertices, source)
                     src_poses = [(name, src.vertices + carry @ (P - source.vertices)) for name, P in poses]
                 seconds["decimation"] += time.perf_counter() - t0
-                t0 = time.perf_counter()
                 ranked = self._posed_sources(src, tgt, src_poses, memo, n_posed + n_chal) if n_posed + n_chal else []
-                seconds["hypotheses_and_verification"] += time.perf_counter() - t0
                 prepared[size] = _Working(src, tgt, src_poses, memo, back, ranked)
             return prepared[size]
 
         def verify(challengers: bool) -> list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]]:
             """Verify the contenders' runs (``challengers=False``) or the challengers' (``True``), in plan order."""
-            t_verify, counted = time.perf_counter(), seconds["decimation"] + seconds["hypotheses_and_verification"]
+            t_verify, decimation = time.perf_counter(), seconds["decimation"]
             submitted: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
             with (one_blas_thread() if shared else nullcontext()), (ThreadPoolExecutor(max_workers=self._n_threads()) if shared else nullcontext()) as pool:
                 for size in sizes:
@@ -1999,9 +1995,8 @@ class DeformMatcher(Matcher):
                             "refined": False, "full_residual": None, "score": None,
                             "hypothesis": label if run["source_pose"] is None else f"posed {run['source_pose']}: {label}"})
                 out.append((v, run, back, home))
-            # the time spent here, less what prepare counted meanwhile
-            elapsed = time.perf_counter() - t_verify - (seconds["decimation"] + seconds["hypotheses_and_verification"] - counted)
-            seconds["hypotheses_and_verification"] += elapsed
+            # the time spent here (the poses' ranking included), less the decimation prepare made meanwhile
+            seconds["hypotheses_and_verification"] += time.perf_counter() - t_verify - (seconds["decimation"] - decimation)
             return out
 
         finished: dict[int, tuple[float, FloatArray, dict[str, Any]]] = {}
