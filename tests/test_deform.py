@@ -874,8 +874,18 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
     _, info_r = make_matcher("deform", **fast, n_starts=2, pose_challengers=1, refine_runs=1, challenge_above=0.0).register(src, tgt, poses=poses)
     flags = [(r["challenger"], r["refined"]) for r in info_r["runs"]]
     assert flags[2] == (True, True) and sorted(f[1] for f in flags[:2]) == [False, True]
+    # challenge_judge="score": once the challenger is registered, the lowest score of the refined runs is kept
+    # (the same registrations as with the folded share's margin); a closed gate leaves the choice alone
+    judged, info_j = make_matcher("deform", **fast, pose_challengers=1, challenge_judge="score", challenge_above=0.0).register(src, tgt, poses=poses)
+    scores = [r["score"] for r in info_j["runs"]]
+    assert scores == [r["score"] for r in info_0["runs"]] and info_j["run"] == int(np.argmin(scores))
+    assert ("replaced" in info_j["challenge"]) == (info_j["run"] != 0)
+    assert np.array_equal(judged, base_deformed) == (info_j["run"] == 0)
+    shut, info_s2 = make_matcher("deform", **fast, pose_challengers=1, challenge_judge="score", challenge_above=gate).register(src, tgt, poses=poses)
+    assert info_s2["challenge"] == {"folded": f0, "above": gate, "registered": False} and np.array_equal(shut, base_deformed)
     for name, bad in (("pose_challengers", -1), ("pose_challengers", True), ("challenge_margin", -0.1), ("challenge_margin", 2.0),
-                      ("challenge_margin", True), ("challenge_above", -0.01), ("challenge_above", 1.5), ("challenge_above", "0.05")):
+                      ("challenge_margin", True), ("challenge_above", -0.01), ("challenge_above", 1.5), ("challenge_above", "0.05"),
+                      ("challenge_judge", "fit"), ("challenge_judge", None)):
         with pytest.raises(ValueError, match=name):
             make_matcher("deform", **{name: bad}).register(src, tgt)
     # without poses there is nothing to register in a pose: one plain registration

@@ -1337,7 +1337,13 @@ class DeformMatcher(Matcher):
         benchmark's leave-one-out and the harder leave-three-out of
         ``benchmarks/template_novel_poses.py --k 2``) are the same, kid15's at ``K = 2``
         replaced (19.30 -> 12.39); at 0.002 kid06 and kid13 also switch, to worse runs, and
-        at 0.02 nothing does.
+        at 0.02 nothing does. Only with ``challenge_judge="folded"``.
+    challenge_judge : {"folded", "score"}
+        How the challengers challenge (``pose_challengers``). ``"folded"`` (default): a
+        refined run whose map turns over at least ``challenge_margin`` less than the
+        chosen run's replaces it (#136). ``"score"``: once the challengers are registered,
+        the refined run with the lowest score (the choice's own criterion) is kept, among
+        the challengers and the refined runs the choice was made from (#139).
     challenge_above : float
         The folded share (in [0, 1]) of the chosen run's map at and above which the
         challengers are registered (``pose_challengers``); below it, the choice stands and
@@ -1396,6 +1402,7 @@ class DeformMatcher(Matcher):
         pose_challengers: int = 0,
         challenge_margin: float = 0.01,
         challenge_above: float = 0.06,
+        challenge_judge: str = "folded",
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1440,6 +1447,7 @@ class DeformMatcher(Matcher):
         self.pose_challengers = pose_challengers
         self.challenge_margin = challenge_margin
         self.challenge_above = challenge_above
+        self.challenge_judge = challenge_judge
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches"):
@@ -1510,6 +1518,8 @@ class DeformMatcher(Matcher):
             v = getattr(self, name)
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) or not 0 <= v <= 1:
                 raise ValueError(f"{name} must be a number in [0, 1], got {v!r}")
+        if self.challenge_judge not in ("folded", "score"):
+            raise ValueError(f"challenge_judge must be 'folded' or 'score', got {self.challenge_judge!r}")
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
@@ -2054,7 +2064,7 @@ class DeformMatcher(Matcher):
         if n_chal and len(poses) > n_posed:
             # challengers (#136): registered only when the choice's map turns over at least
             # challenge_above of the target; then a refined run whose map turns over clearly
-            # less (challenge_margin) replaces the choice
+            # less (challenge_margin) replaces the choice, or (#139) the lowest score of all
             fold(chosen)
             challenge = {"folded": folded[k_best], "above": float(self.challenge_above), "registered": folded[k_best] >= self.challenge_above}
             if challenge["registered"]:
@@ -2062,10 +2072,14 @@ class DeformMatcher(Matcher):
                 pending += verify(challengers=True)
                 refine(list(range(first, len(pending))))
                 fold(list(range(first, len(pending))))
-            k_least = min(folded, key=folded.__getitem__)  # the first of equals, in plan order
-            if folded[k_least] < folded[k_best] - float(self.challenge_margin):
-                challenge["replaced"] = {"chosen": k_best, "by": k_least}
-                k_best = k_least
+            if self.challenge_judge == "score":
+                k_new = min(finished, key=lambda k: (finished[k][0], k)) if challenge["registered"] else k_best
+            else:
+                k_least = min(folded, key=folded.__getitem__)  # the first of equals, in plan order
+                k_new = k_least if folded[k_least] < folded[k_best] - float(self.challenge_margin) else k_best
+            if k_new != k_best:
+                challenge["replaced"] = {"chosen": k_best, "by": k_new}
+                k_best = k_new
         _, deformed, info = finished[k_best]
         info["runs"] = [run for _, run, _, _ in pending]
         if challenge is not None:
