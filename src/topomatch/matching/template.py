@@ -210,7 +210,11 @@ class TemplateMatcher(Matcher):
         :data:`POSED_STARTS` (two) sampling starts, the poses among the hypotheses of
         each, and :data:`POSE_SOURCES` (one) more registration of the template *in*
         the best-fitting training pose (``pose_sources``), the best full-mesh score
-        kept, and :data:`FEATURE_ITERATIONS` (60) iterations of the feature stage. Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
+        kept, :data:`FEATURE_ITERATIONS` (60) iterations of the feature stage, and
+        :data:`POSE_CHALLENGERS` (three) more posed registrations where the kept map turns
+        over 6 % or more of the shape, the lowest score of all then kept
+        (:data:`CHALLENGE_JUDGE`; ``{"pose_challengers": 0}`` for session 42's
+        default). Without them on top of :data:`~topomatch.matching.deform.ACCURATE` (five
         sampling starts, the best fit kept). On the training pairs kid00 ->
         kid01..kid15 (leave-one-out, Dijkstra x100) two starts with the poses and the
         posed source scored 2.04, one start and the posed source 2.08, two starts
