@@ -49,15 +49,16 @@ from pathlib import Path
 import numpy as np
 from _common import emit_row
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from topomatch.cli.main import _parse_params
 from topomatch.datasets.base import ShapeCollection
+from topomatch.datasets.figure import _align
 from topomatch.datasets.noise import NoiseParams, topological_noise
 from topomatch.datasets.topkids import load_topkids
 from topomatch.io import read_mesh
 from topomatch.matching import make_matcher
 from topomatch.mesh import TriangleMesh
+from topomatch.mesh.geometry import axis_rotation
 
 #: Leg rings (rest-pose height of the null shape's leg, KIDS units): where a hand is put.
 PLACES = {"thigh": -15.0, "knee": -27.0, "shin": -37.0}
@@ -66,16 +67,6 @@ PLACES = {"thigh": -15.0, "knee": -27.0, "shin": -37.0}
 def _smoothstep(t: np.ndarray, a: float, b: float) -> np.ndarray:
     u = np.clip((t - a) / (b - a), 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
-
-
-def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking direction ``a`` to direction ``b``, shape (3, 3)."""
-    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    s = float(np.linalg.norm(axis))
-    if s < 1e-9:
-        return np.eye(3)
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, float(a @ b))).as_matrix()
 
 
 class KidsArm:
@@ -108,11 +99,11 @@ class KidsArm:
         normal = np.cross(s - e, h - e)
         normal = normal / max(float(np.linalg.norm(normal)), 1e-12)
         # of the two senses of the elbow's turn, the one that leaves the palm d from the shoulder
-        bends = [Rotation.from_rotvec(sign * normal * (now - want)).as_matrix() for sign in (1.0, -1.0)]
+        bends = [axis_rotation(normal, sign * (now - want)) for sign in (1.0, -1.0)]
         bend = min(bends, key=lambda R: abs(np.linalg.norm(e + R @ (h - e) - s) - d))
         w = self.w_elbow[:, None]
         bent = (1.0 - w) * posed + w * ((posed - e) @ bend.T + e)
-        swing = _rotation_between(bent[self.palm].mean(axis=0) - s, target - s)
+        swing = _align(bent[self.palm].mean(axis=0) - s, target - s)  # the smallest rotation
         w = self.w_shoulder[:, None]
         return (1.0 - w) * bent + w * ((bent - s) @ swing.T + s)
 
