@@ -86,8 +86,8 @@ def test_evaluate_rescores_a_run_directory_maps(tmp_path, topkids_low, capsys):
     assert rc == 2 and "p2p_21" in capsys.readouterr().err
 
 
-def test_match_defaults_to_the_flagship(tmp_path, capsys):
-    # a shape without symmetry matched to a shuffled copy of itself: the flagship finds the identity
+def test_match_without_a_template_defaults_to_the_flagship_s_registration(tmp_path, capsys):
+    # a shape without symmetry matched to a shuffled copy of itself: deform finds the identity
     from ._fmap_shapes import bumpy, shuffled
 
     src = bumpy(3, mirror_symmetric=False)
@@ -109,13 +109,26 @@ def test_match_through_a_template(tmp_path, capsys):
     tgt, perm_t = shuffled(tmpl, seed=2)
     for name, m in (("t.off", tmpl), ("a.off", src), ("b.off", tgt)):
         write_mesh(tmp_path / name, m.vertices, m.faces)
-    args = ["match", str(tmp_path / "a.off"), str(tmp_path / "b.off"), "--out", str(tmp_path / "m.npy"), "--method", "template"]
-    assert main(args) == 2
-    assert "--param template.model=PATH" in capsys.readouterr().err
-    assert main([*args, "--param", f"template.model={tmp_path / 't.off'}"]) == 0
+    args = ["match", str(tmp_path / "a.off"), str(tmp_path / "b.off"), "--out", str(tmp_path / "m.npy")]
+    assert main([*args, "--method", "template"]) == 2
+    assert "--template PATH" in capsys.readouterr().err
+    # --template: the default method is then template (the flagship)
+    assert main([*args, "--template", str(tmp_path / "t.off")]) == 0
+    assert "template through t (0 training poses)" in capsys.readouterr().err
     # target vertex i is template vertex perm_t[i]; source vertex j is template vertex perm_s[j]
     expected = np.argsort(perm_s)[perm_t]
-    assert np.mean(np.load(tmp_path / "m.npy") == expected) > 0.95
+    got = np.load(tmp_path / "m.npy")
+    assert np.mean(got == expected) > 0.95
+    # the same through --param template.model=PATH
+    assert main([*args, "--method", "template", "--param", f"template.model={tmp_path / 't.off'}"]) == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "m.npy"), got)
+    # a template for another method, or two templates: refused before any work
+    assert main([*args, "--template", str(tmp_path / "t.off"), "--method", "deform"]) == 2
+    assert "--template is the template of method 'template'" in capsys.readouterr().err
+    assert main([*args, "--template", str(tmp_path / "t.off"), "--param", f"template.model={tmp_path / 'a.off'}"]) == 2
+    assert "two templates" in capsys.readouterr().err
+    assert main([*args, "--template", str(tmp_path / "none.off")]) == 2
+    assert "none.off" in capsys.readouterr().err
 
 
 def test_param_values_parse_like_python_and_shell_booleans():

@@ -199,6 +199,48 @@ def test_template_model_file_round_trip(tmp_path, fitted, builtin):
         make_matcher("template", model=str(path), fill_patches=1).fit([])
 
 
+def test_template_model_file_brings_the_training_poses(tmp_path, fitted, builtin):
+    # topomatch fit template --out MODEL.off, then topomatch match --template MODEL.off: the same matcher
+    path = fitted.save_model(tmp_path / "model.off")
+    assert (tmp_path / "model_poses.npz").is_file()
+    m = make_matcher("template", model=str(path), deform=FAST).fit([])
+    assert m.training_shapes_ == ["model", *builtin.splits["train"]]
+    assert [(n, h) for n, h, _ in m.poses_] == [(n, h) for n, h, _ in fitted.poses_]
+    for (_, _, P), (_, _, Q) in zip(m.poses_, fitted.poses_):
+        np.testing.assert_array_equal(P, Q)
+    # so the registration is set up as the benchmark's: two starts, the posed source, the challengers
+    assert m._deformer().get_params() == fitted._deformer().get_params()
+    assert m._deformer().pose_sources == POSE_SOURCES and m._deformer().challenge_above == CHALLENGE_ABOVE
+    # a shape's own pose is still left out by content
+    own = builtin[builtin.splits["train"][0]]
+    assert len(_poses_for(m, own.mesh)) == len(m.poses_) - 1
+    # poses=False ignores them; mirror_poses mirrors them with the model's symmetry map
+    assert make_matcher("template", model=str(path), poses=False).fit([]).poses_ == []
+    mirrored = make_matcher("template", model=str(path), mirror_poses=True).fit([])
+    assert len(mirrored.poses_) == 2 * len(fitted.poses_) and mirrored.training_shapes_ == m.training_shapes_
+    np.testing.assert_array_equal(mirrored.poses_[1][2], mirrored_pose(fitted.poses_[0][2], builtin["syn00"].sym))
+    # a model saved again writes only the unmirrored poses
+    mirrored.save_model(tmp_path / "again.off")
+    assert len(np.load(tmp_path / "again_poses.npz")["names"]) == len(fitted.poses_)
+    # a model without poses removes a stale poses file, whose poses would not be its own
+    make_matcher("template", poses=False).fit([builtin["syn00"]]).save_model(tmp_path / "again.off")
+    assert not (tmp_path / "again_poses.npz").exists()
+    # bad poses files: the file named, what is wrong said
+    np.savez(tmp_path / "model_poses.npz", names=np.array(["a"]), hashes=np.array(["h"]), poses=np.zeros((1, 5, 3)))
+    with pytest.raises(ValueError, match=r"model_poses\.npz.*do not fit a template of"):
+        make_matcher("template", model=str(path)).fit([])
+    np.savez(tmp_path / "model_poses.npz", names=np.array(["a"]), poses=np.zeros((1, 5, 3)))
+    with pytest.raises(ValueError, match=r"model_poses\.npz: not a template's poses file"):
+        make_matcher("template", model=str(path)).fit([])
+    (tmp_path / "model_poses.npz").write_text("not npz")
+    with pytest.raises(ValueError, match=r"model_poses\.npz: not a template's poses file"):
+        make_matcher("template", model=str(path)).fit([])
+    n = fitted.template_.n_vertices
+    np.savez(tmp_path / "model_poses.npz", names=np.array(["a"]), hashes=np.array(["h"]), poses=np.full((1, n, 3), np.nan))
+    with pytest.raises(ValueError, match="finite"):
+        make_matcher("template", model=str(path)).fit([])
+
+
 def test_pose_from_ground_truth_moves_the_template_into_the_shape_s_pose(builtin):
     template = builtin["syn00"].mesh
     n = template.n_vertices

@@ -48,7 +48,7 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
 
 def _build_parser() -> argparse.ArgumentParser:
     from topomatch import __version__
-    from topomatch.matching import DEFAULT_METHOD, MATCHERS
+    from topomatch.matching import DEFAULT_METHOD, DEFAULT_WITHOUT_TEMPLATE, MATCHERS
 
     parser = argparse.ArgumentParser(prog="topomatch", description="Dense shape correspondence under topological noise.")
     parser.add_argument("--version", action="version", version=f"topomatch {__version__}")
@@ -94,7 +94,13 @@ def _build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("match", help="match one pair of meshes")
     m.add_argument("source", help="shape 1 (the map's values index its vertices)")
     m.add_argument("target", help="shape 2 (one map entry per vertex)")
-    m.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(MATCHERS), help=f"default: {DEFAULT_METHOD}")
+    m.add_argument("--method", choices=sorted(MATCHERS), help=f"default: {DEFAULT_METHOD} with --template, else {DEFAULT_WITHOUT_TEMPLATE}")
+    m.add_argument(
+        "--template",
+        metavar="MESH",
+        help="clean template of the shapes' class, matched through (method template): a mesh such as TOPKIDS' kid00.off, "
+        "or a model from 'topomatch fit template --out MODEL.off', which brings the training poses",
+    )
     m.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--out", required=True, metavar="MAP", help="output file (.txt one-based vertex map, .npy zero-based, or --format shrec16)")
@@ -257,18 +263,25 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_match(args: argparse.Namespace) -> int:
     from topomatch.io import write_p2p, write_shrec16_map
-    from topomatch.matching import make_matcher
+    from topomatch.matching import DEFAULT_METHOD, DEFAULT_WITHOUT_TEMPLATE, make_matcher
     from topomatch.mesh import TriangleMesh
 
+    method = args.method or (DEFAULT_METHOD if args.template else DEFAULT_WITHOUT_TEMPLATE)
     try:
         source = TriangleMesh.from_file(args.source)
         target = TriangleMesh.from_file(args.target)
-        params = _parse_params(args.param, [args.method]).get(args.method, {})
-        matcher = make_matcher(args.method, **params)
+        params = _parse_params(args.param, [method]).get(method, {})
+        if args.template is not None:
+            if method != "template":
+                raise ValueError(f"--template is the template of method 'template', not of {method!r}")
+            if params.get("model", args.template) != args.template:
+                raise ValueError(f"two templates given: --template {args.template} and --param template.model={params['model']}")
+            params["model"] = args.template
+        matcher = make_matcher(method, **params)
         if "random_state" in matcher.get_params() and "random_state" not in params:
             matcher.set_params(random_state=args.seed)
         if matcher.requires_fit and not getattr(matcher, "model", None):
-            hint = matcher.model_hint or f"{args.method} needs training; use 'topomatch bench', or 'topomatch fit {args.method} --out MODEL' and --param model=MODEL"
+            hint = matcher.model_hint or f"{method} needs training; use 'topomatch bench', or 'topomatch fit {method} --out MODEL' and --param model=MODEL"
             raise ValueError(hint)
         if matcher.requires_fit:
             matcher.fit([])  # loads the model file given as --param model=...
@@ -288,7 +301,11 @@ def cmd_match(args: argparse.Namespace) -> int:
         write_shrec16_map(args.out, corr.p2p_21, source.faces)
     else:
         write_p2p(args.out, corr.p2p_21)
-    print(f"{args.method}: {target.n_vertices} target vertices mapped onto {source.n_vertices} source vertices in {seconds:.2f} s -> {args.out}", file=sys.stderr)
+    how = method
+    if method == "template":
+        k = len(matcher.training_shapes_) - 1
+        how = f"template through {matcher.template_name_} ({k} training pose{'s' if k != 1 else ''})"
+    print(f"{how}: {target.n_vertices} target vertices mapped onto {source.n_vertices} source vertices in {seconds:.2f} s -> {args.out}", file=sys.stderr)
     return 0
 
 

@@ -20,7 +20,10 @@ these poses, rigidly aligned to a shape, join the registration's hypotheses
 (``DeformMatcher.register(..., poses=...)``). This is training, as for ``rf``: the
 training split's ground truth is used, never a test shape's, and a shape's own pose is
 left out when it is registered, so figures on training shapes are leave-one-out. A
-``model`` file holds only the mesh: matching through it has no poses.
+model written by ``save_model`` (``topomatch fit template --out MODEL.off``) holds the
+mesh, its symmetry map (``<stem>_sym.txt``) and the training poses
+(``<stem>_poses.npz``), so ``topomatch match --template MODEL.off`` gives the maps a
+benchmark run gives; a bare mesh as ``model`` has no poses.
 """
 
 from __future__ import annotations
@@ -95,6 +98,38 @@ CHALLENGE_ABOVE = 0.05
 def _sym_path(mesh_path: Path) -> Path:
     """Where a template's symmetry map lives beside its mesh: ``<stem>_sym.txt`` (TOPKIDS' ``kid00_sym.txt``)."""
     return mesh_path.with_name(mesh_path.stem + "_sym.txt")
+
+
+def _poses_path(mesh_path: Path) -> Path:
+    """Where a template's training poses live beside its mesh: ``<stem>_poses.npz``."""
+    return mesh_path.with_name(mesh_path.stem + "_poses.npz")
+
+
+def _write_poses(path: Path, poses: Sequence[tuple[str, str, FloatArray]]) -> None:
+    """Write training poses ``(name, content hash of the shape, template vertices (n, 3))`` as an ``.npz`` file."""
+    np.savez(
+        path,
+        names=np.array([name for name, _, _ in poses], dtype=str),
+        hashes=np.array([h for _, h, _ in poses], dtype=str),
+        poses=np.stack([np.asarray(P, dtype=np.float64) for _, _, P in poses]),
+    )
+
+
+def _read_poses(path: Path, n_vertices: int) -> list[tuple[str, str, FloatArray]]:
+    """Read the training poses written by :func:`_write_poses`, checked against a template of ``n_vertices``."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            names, hashes, poses = z["names"], z["hashes"], z["poses"]
+    except (OSError, ValueError, KeyError) as err:
+        raise ValueError(f"{path}: not a template's poses file (names, hashes, poses arrays): {err}") from None
+    if poses.ndim != 3 or poses.shape[1:] != (n_vertices, 3) or len(names) != len(poses) or len(hashes) != len(poses):
+        raise ValueError(
+            f"{path}: poses of shape {poses.shape} with {len(names)} names and {len(hashes)} hashes do not fit "
+            f"a template of {n_vertices} vertices (expected (k, {n_vertices}, 3) and k of each)"
+        )
+    if not np.issubdtype(poses.dtype, np.floating) or not np.isfinite(poses).all():
+        raise ValueError(f"{path}: the poses must be finite floating-point coordinates")
+    return [(str(n), str(h), np.array(P, dtype=np.float64)) for n, h, P in zip(names, hashes, poses)]
 
 
 def compose_through_template(target_to_template: IndexArray, template_to_source: IndexArray) -> IndexArray:
@@ -211,7 +246,8 @@ class TemplateMatcher(Matcher):
         Path of the template mesh (OFF, PLY or OBJ): a clean shape of the same class.
         When not given, ``fit`` takes the null shape of the shapes it receives (for
         TOPKIDS ``kid00``; only its mesh is used, and with ``poses`` the other shapes' ground
-        truth to it).
+        truth to it). A model written by :meth:`save_model` brings its training poses
+        (``<stem>_poses.npz`` beside the mesh).
     deform : dict, optional
         Hyperparameters of the :class:`DeformMatcher` that registers the template. With
         training poses (see ``poses``) on top of ``deform``'s defaults with
@@ -243,7 +279,8 @@ class TemplateMatcher(Matcher):
         (``DeformMatcher.pose_keep``, :func:`~topomatch.matching.deform.pose_hypotheses`).
         A shape's own pose is never used for it (left out by content), so the training
         pairs' figures are leave-one-out. Only when the template is the fit shapes'
-        reference (no ``model``, or a ``model`` with the reference's mesh).
+        reference (no ``model``, or a ``model`` with the reference's mesh), or from the
+        poses file of a ``model`` written by :meth:`save_model`.
     mirror_poses : bool, default False
         Also give the mirror image of each training pose (:func:`mirrored_pose`, with
         the reference shape's symmetry map ``sym``); left out with the pose itself.
@@ -295,7 +332,8 @@ class TemplateMatcher(Matcher):
     requires_fit = True
     shares_work = True
     model_hint = (
-        "template needs a template mesh: --param template.model=PATH (a clean shape of the same class, e.g. TOPKIDS' kid00.off)"
+        "template needs a template mesh: --template PATH (a clean shape of the same class, e.g. TOPKIDS' kid00.off, "
+        "or a model written by 'topomatch fit template --out MODEL.off', which brings the training poses)"
     )
 
     def __init__(
@@ -390,7 +428,15 @@ class TemplateMatcher(Matcher):
         self.training_shapes_ = [self.template_name_]
         # (name, content hash of the shape, the template's vertices in its pose)
         self.poses_: list[tuple[str, str, FloatArray]] = []
-        if self.poses and ref is not None:
+        if self.poses and ref is None and self.model is not None and _poses_path(Path(self.model)).is_file():
+            if self.mirror_poses and self.template_sym_ is None:
+                raise ValueError(f"template: mirror_poses needs the left-right symmetry map of {self.model}")
+            for name, h, P in _read_poses(_poses_path(Path(self.model)), self.template_.n_vertices):
+                self.poses_.append((name, h, P))
+                if self.mirror_poses:
+                    self.poses_.append((name + " mirrored", h, mirrored_pose(P, self.template_sym_)))
+            self.training_shapes_ += [name for name, _, _ in self.poses_ if not name.endswith(" mirrored")]
+        elif self.poses and ref is not None:
             if self.mirror_poses and ref.sym is None:
                 raise ValueError(f"template: mirror_poses needs the left-right symmetry map of {ref.name}")
             for s in shapes:
@@ -420,7 +466,9 @@ class TemplateMatcher(Matcher):
         """Write the template mesh to ``path`` (an OFF file unless the suffix says otherwise).
 
         The template's symmetry map, when it has one, goes beside it as ``<stem>_sym.txt``
-        (the TOPKIDS naming), where ``fit`` with ``model`` finds it again.
+        (the TOPKIDS naming), and the training poses, when there are any, as
+        ``<stem>_poses.npz`` (names, content hashes of the training shapes, the template's
+        vertices in each pose, shape (k, n, 3)), where ``fit`` with ``model`` finds them again.
         """
         if not hasattr(self, "template_"):
             raise NotFittedError("template: fit before save_model")
@@ -432,6 +480,11 @@ class TemplateMatcher(Matcher):
         sym = getattr(self, "template_sym_", None)
         if sym is not None:
             write_sym(_sym_path(path), sym)
+        poses = [p for p in getattr(self, "poses_", []) if not p[0].endswith(" mirrored")]  # mirrored again at fit
+        if poses:
+            _write_poses(_poses_path(path), poses)
+        elif _poses_path(path).is_file():
+            _poses_path(path).unlink()  # a stale file beside would give this model another's poses
         return path
 
     def _is_template(self, mesh: TriangleMesh) -> bool:
