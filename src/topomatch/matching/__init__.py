@@ -39,8 +39,9 @@ MATCHERS: dict[str, type[Matcher]] = {
 DEFAULT_METHOD = "template"
 """Default of ``topomatch bench`` and of ``topomatch match --template``: the flagship, the
 registration of a clean template onto each shape (``deform``) with the training shapes'
-poses, composed pair by pair (``topkids25`` 2.45 x100 and ``shrec16`` AUC 0.868 at about
-9 s a shape on two cores; see ``docs/flagship.md``, "Default method")."""
+poses, composed pair by pair (``topkids25`` 2.45 x100 and ``shrec16`` AUC 0.868; one
+registration per shape, 8.6-18.5 s on two cores as the machine's speed varies, x1.4-1.6 of
+pyFM's ZoomOut in the same run; see ``docs/flagship.md``, "Default method")."""
 
 DEFAULT_WITHOUT_TEMPLATE = "deform"
 """Default of ``topomatch match`` when no template is given: the flagship's registration,
