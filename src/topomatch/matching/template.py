@@ -28,6 +28,7 @@ benchmark run gives; a bare mesh as ``model`` has no poses.
 
 from __future__ import annotations
 
+import io
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -39,6 +40,7 @@ from scipy.sparse.linalg import spsolve
 
 from topomatch.datasets.base import Shape
 from topomatch.io import read_sym, write_mesh, write_sym
+from topomatch.io.meshes import _atomic_write_bytes
 from topomatch.maps.patches import fill_small_patches
 from topomatch.maps.symmetry import flip_mirror_patches
 from topomatch.matching._spectral import find_reference
@@ -106,13 +108,15 @@ def _poses_path(mesh_path: Path) -> Path:
 
 
 def _write_poses(path: Path, poses: Sequence[tuple[str, str, FloatArray]]) -> None:
-    """Write training poses ``(name, content hash of the shape, template vertices (n, 3))`` as an ``.npz`` file."""
+    """Write training poses ``(name, content hash of the shape, template vertices (n, 3))`` as an ``.npz`` file, atomically as the mesh."""
+    buf = io.BytesIO()
     np.savez(
-        path,
+        buf,
         names=np.array([name for name, _, _ in poses], dtype=str),
         hashes=np.array([h for _, h, _ in poses], dtype=str),
         poses=np.stack([np.asarray(P, dtype=np.float64) for _, _, P in poses]),
     )
+    _atomic_write_bytes(path, buf.getvalue())
 
 
 def _read_poses(path: Path, n_vertices: int) -> list[tuple[str, str, FloatArray]]:
@@ -428,24 +432,23 @@ class TemplateMatcher(Matcher):
         self.training_shapes_ = [self.template_name_]
         # (name, content hash of the shape, the template's vertices in its pose)
         self.poses_: list[tuple[str, str, FloatArray]] = []
-        if self.poses and ref is None and self.model is not None and _poses_path(Path(self.model)).is_file():
-            if self.mirror_poses and self.template_sym_ is None:
-                raise ValueError(f"template: mirror_poses needs the left-right symmetry map of {self.model}")
-            for name, h, P in _read_poses(_poses_path(Path(self.model)), self.template_.n_vertices):
-                self.poses_.append((name, h, P))
-                if self.mirror_poses:
-                    self.poses_.append((name + " mirrored", h, mirrored_pose(P, self.template_sym_)))
-            self.training_shapes_ += [name for name, _, _ in self.poses_ if not name.endswith(" mirrored")]
-        elif self.poses and ref is not None:
-            if self.mirror_poses and ref.sym is None:
-                raise ValueError(f"template: mirror_poses needs the left-right symmetry map of {ref.name}")
-            for s in shapes:
-                if s is not ref and s.ref is not None and s.mesh.content_hash != ref.mesh.content_hash:
-                    P = pose_from_ground_truth(self.template_, s)
-                    self.poses_.append((s.name, s.mesh.content_hash, P))
-                    if self.mirror_poses:
-                        self.poses_.append((s.name + " mirrored", s.mesh.content_hash, mirrored_pose(P, ref.sym)))
-            self.training_shapes_ += [name for name, _, _ in self.poses_ if not name.endswith(" mirrored")]
+        # the training poses: from the collection's ground truth, else from a saved model's poses file
+        learned: list[tuple[str, str, FloatArray]] = []
+        owner, sym = (ref.name, ref.sym) if ref is not None else (str(self.model), self.template_sym_)
+        saved = None if ref is not None or self.model is None else _poses_path(Path(self.model))
+        has_poses = self.poses and (ref is not None or (saved is not None and saved.is_file()))
+        if has_poses and self.mirror_poses and sym is None:
+            raise ValueError(f"template: mirror_poses needs the left-right symmetry map of {owner}")
+        if has_poses and ref is not None:
+            learned = [(s.name, s.mesh.content_hash, pose_from_ground_truth(self.template_, s)) for s in shapes
+                       if s is not ref and s.ref is not None and s.mesh.content_hash != ref.mesh.content_hash]
+        elif has_poses:
+            learned = _read_poses(saved, self.template_.n_vertices)
+        for name, h, P in learned:
+            self.poses_.append((name, h, P))
+            if self.mirror_poses:
+                self.poses_.append((name + " mirrored", h, mirrored_pose(P, sym)))
+        self.training_shapes_ += [name for name, _, _ in learned]
         self.registrations_: dict[str, tuple[FloatArray, dict[str, Any]]] = {}
         return self
 
