@@ -40,8 +40,8 @@ DEFAULT_METHOD = "template"
 """Default of ``topomatch bench`` and of ``topomatch match --template``: the flagship, the
 registration of a clean template onto each shape (``deform``) with the training shapes'
 poses, composed pair by pair (``topkids25`` 2.45 x100 and ``shrec16`` AUC 0.868; one
-registration per shape, 8.6-18.5 s on two cores as the machine's speed varies, x1.4-1.6 of
-pyFM's ZoomOut in the same run; see ``docs/flagship.md``, "Default method")."""
+registration per shape, x1.4-1.6 of pyFM's ZoomOut's time in the same run, the seconds
+varying with the machine; see ``docs/flagship.md``, "Default method")."""
 
 DEFAULT_WITHOUT_TEMPLATE = "deform"
 """Default of ``topomatch match`` when no template is given: the flagship's registration,
