@@ -335,6 +335,12 @@ def test_deform_matcher_rejects_bad_parameters(pair):
         make_matcher("deform", n_threads=0).match(src, tgt)
     with pytest.raises(ValueError, match="rigid_frames"):
         make_matcher("deform", rigid_frames=("upright",)).match(src, tgt)
+    with pytest.raises(ValueError, match="rigid_frames_with_poses"):
+        make_matcher("deform", rigid_frames_with_poses=("upright",)).match(src, tgt)
+    with pytest.raises(ValueError, match="rigid_frames_with_poses"):
+        make_matcher("deform", rigid_frames_with_poses="as-given").match(src, tgt)
+    with pytest.raises(ValueError, match="pose_samples"):
+        make_matcher("deform", pose_samples=2).match(src, tgt)
     with pytest.raises(ValueError, match="swap_threshold"):
         make_matcher("deform", swap_threshold=-0.1).match(src, tgt)
     with pytest.raises(ValueError, match="swap_min_vertices"):
@@ -563,14 +569,31 @@ def test_deform_verifies_the_pose_hypotheses(builtin, monkeypatch):
     assert info["hypothesis"].startswith("pose b")
     p2p = map_from_deformed(tgt, deformed, src.faces)
     assert np.median(np.linalg.norm(src.vertices[p2p] - src.vertices[perm], axis=1)) / np.sqrt(src.area) < 0.01
+    # the rigid hypotheses from every frame, unless rigid_frames_with_poses narrows them where the poses are
+    assert sum(label.startswith("rigid axes ") for label in labels) == 4 and "rigid as-given" in labels
+    narrow = make_matcher("deform", **fast, rigid_frames_with_poses=("as-given",))
+    narrow_labels = [h.label for h in narrow.verify_hypotheses(src, tgt, poses=poses)[0]]
+    assert [x for x in labels if not x.startswith("rigid axes ")] == narrow_labels
+    # the poses' own alignments still start from every frame; without poses every rigid frame is verified
+    assert any(" axes " in x for x in narrow_labels if x.startswith("pose "))
+    assert sum(h.label.startswith("rigid axes ") for h in narrow.verify_hypotheses(src, tgt)[0]) == 4
+    # the poses ranked on a prefix of the samples (a farthest-point sample itself): the known pose still wins
+    import topomatch.matching.deform as deform_module
+
+    sizes = []
+    ranked = deform_module._rank_poses
+    monkeypatch.setattr(deform_module, "_rank_poses", lambda source, target, s1, s2, *a, **k: sizes.append((len(s1), len(s2))) or ranked(source, target, s1, s2, *a, **k))
+    few = make_matcher("deform", **fast, pose_samples=100)
+    few_hyps, few_results = few.verify_hypotheses(src, tgt, poses=poses)
+    assert sizes == [(100, 100)]
+    monkeypatch.setattr(deform_module, "_rank_poses", ranked)
+    assert few_hyps[int(np.argmin([r.residual for r in few_results]))].label.startswith("pose b")
     # pose_keep=0 and no poses: no pose hypotheses
     assert not any(h.label.startswith("pose ") for h in make_matcher("deform", **fast, pose_keep=0).verify_hypotheses(src, tgt, poses=poses)[0])
     assert not any(h.label.startswith("pose ") for h in m.verify_hypotheses(src, tgt)[0])
     with pytest.raises(ValueError, match="pose_keep"):
         make_matcher("deform", pose_keep=-1).register(src, tgt)
     # several sampling starts align the poses once (on start 0's samples) and read each start's map off them
-    import topomatch.matching.deform as deform_module
-
     calls = []
     real = deform_module._rank_poses
     monkeypatch.setattr(deform_module, "_rank_poses", lambda *a, **k: calls.append(1) or real(*a, **k))

@@ -1177,6 +1177,14 @@ class DeformMatcher(Matcher):
         for none. With them and the longer verification (25 closest-point iterations)
         the training pairs went from 16.70 to 8.38 (mean geodesic error x100,
         Dijkstra; see ``docs/flagship.md``).
+    rigid_frames_with_poses : tuple of str or None
+        The rigid hypotheses' frames in a registration that has the poses among its
+        hypotheses (``poses`` of :meth:`register`; the poses' own alignments start from
+        every frame of ``rigid_frames`` in any case). ``None``: ``rigid_frames``. There
+        the posed alignments started from the principal axes cover what the rigid
+        principal-axes hypotheses would: on the training pairs those were verified 120
+        times in such registrations, in a top 3 three times and never the best
+        (attempts #146, #148 in ``docs/flagship.md``).
     articulated : int
         How many *bent* rigid hypotheses are verified after the rigid ones (see
         :func:`articulated_hypotheses`): the source bent in two at the median of its
@@ -1251,6 +1259,11 @@ class DeformMatcher(Matcher):
         shape) three took the training pairs kid00 -> kid01..kid15 from 2.70 to 2.37
         (one start, Dijkstra x100; attempt #86, ``docs/flagship.md``). ``0``: poses are
         ignored.
+    pose_samples : int or None
+        How many of the samples (the first of the farthest-point order, itself a
+        farthest-point sample) the poses' rigid alignments are fitted and ranked on;
+        ``None``: all ``n_samples``. The ranked alignments are placed on every vertex
+        in any case (attempt #148, ``docs/flagship.md``).
     pose_sources : int
         When :meth:`register` is given the source in other known poses: how many of
         them (those of the best rigid alignments to the target, as ranked for
@@ -1379,6 +1392,7 @@ class DeformMatcher(Matcher):
         n_continue: int = 3,
         distortion_weight: float = 0.025,
         rigid_frames: tuple[str, ...] = RIGID_FRAMES,
+        rigid_frames_with_poses: tuple[str, ...] | None = None,
         matcher_hypotheses: tuple[str, ...] = (),
         articulated: int = 3,
         bend_angles: tuple[float, ...] = (60.0, 90.0, 120.0),
@@ -1392,6 +1406,7 @@ class DeformMatcher(Matcher):
         start_sizes: tuple[int, ...] | None = None,
         n_starts: int = 1,
         pose_keep: int = 3,
+        pose_samples: int | None = None,
         pose_sources: int = 0,
         pose_runs: str = "every",
         refine_runs: int | None = None,
@@ -1424,6 +1439,7 @@ class DeformMatcher(Matcher):
         self.n_continue = n_continue
         self.distortion_weight = distortion_weight
         self.rigid_frames = rigid_frames
+        self.rigid_frames_with_poses = rigid_frames_with_poses
         self.matcher_hypotheses = matcher_hypotheses
         self.articulated = articulated
         self.bend_angles = bend_angles
@@ -1437,6 +1453,7 @@ class DeformMatcher(Matcher):
         self.start_sizes = start_sizes
         self.n_starts = n_starts
         self.pose_keep = pose_keep
+        self.pose_samples = pose_samples
         self.pose_sources = pose_sources
         self.pose_runs = pose_runs
         self.refine_runs = refine_runs
@@ -1523,15 +1540,24 @@ class DeformMatcher(Matcher):
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
+        ps = self.pose_samples
+        if ps is not None and (isinstance(ps, bool) or not isinstance(ps, (int, np.integer)) or ps < 4):
+            raise ValueError(f"pose_samples must be an integer >= 4 or None, got {ps!r}")
         if self.pose_runs not in ("every", "extra"):
             raise ValueError(f"pose_runs must be 'every' or 'extra', got {self.pose_runs!r}")
         for name in ("n_samples", "coarse_nodes", "fine_nodes", "n_continue", "k_zoomout", "swap_min_vertices", "n_starts"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        bad = [f for f in self.rigid_frames if f not in RIGID_FRAMES]
-        if bad:
-            raise ValueError(f"rigid_frames must be among {RIGID_FRAMES}, got {bad}")
+        for name in ("rigid_frames", "rigid_frames_with_poses"):
+            frames = getattr(self, name)
+            if frames is None and name == "rigid_frames_with_poses":
+                continue
+            if isinstance(frames, str) or not isinstance(frames, (tuple, list)):
+                raise ValueError(f"{name} must be a tuple of frames among {RIGID_FRAMES}, got {frames!r}")
+            bad = [f for f in frames if f not in RIGID_FRAMES]
+            if bad:
+                raise ValueError(f"{name} must be among {RIGID_FRAMES}, got {bad}")
         from topomatch.matching import MATCHERS
 
         for name in self.matcher_hypotheses:
@@ -1577,7 +1603,8 @@ class DeformMatcher(Matcher):
         """
         if "ranked" not in memo:
             with one_blas_thread():
-                memo["ranked"] = _rank_poses(source, target, s1, s2, poses, None, tuple(self.rigid_frames), n_threads=self._n_threads())
+                n = len(s1) if self.pose_samples is None else min(int(self.pose_samples), len(s1), len(s2))
+                memo["ranked"] = _rank_poses(source, target, s1[:n], s2[:n], poses, None, tuple(self.rigid_frames), n_threads=self._n_threads())
         return memo["ranked"]
 
     def _posed_sources(
@@ -1598,6 +1625,12 @@ class DeformMatcher(Matcher):
         """Start ``start``'s farthest-point samples of ``mesh`` (:func:`_start_vertex`): at most ``n_samples``."""
         first = _start_vertex(mesh.n_vertices, start, self.n_starts)
         return farthest_point_sampling(min(self.n_samples, mesh.n_vertices), points=mesh.vertices, first=first)
+
+    def _rigid_frames(self, with_poses: bool) -> tuple[str, ...]:
+        """The rigid hypotheses' frames: ``rigid_frames_with_poses`` in a registration with pose hypotheses, if set."""
+        if with_poses and self.rigid_frames_with_poses is not None:
+            return tuple(self.rigid_frames_with_poses)
+        return tuple(self.rigid_frames)
 
     def _score(self, r: RegistrationResult) -> float:
         """The choice's and the limb judge's score: ``residual + distortion_weight x distortion``."""
@@ -1694,7 +1727,7 @@ class DeformMatcher(Matcher):
         # (the maps are between vertex indices: ``intrinsic`` has the source's vertices, in order)
         spectral = spectral_hypotheses(source if intrinsic is None else intrinsic, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
         extrinsic = chain(
-            rigid_hypotheses(source, target, s1, s2, tuple(self.rigid_frames)),
+            rigid_hypotheses(source, target, s1, s2, self._rigid_frames(bool(poses) and self.pose_keep > 0)),
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
             if self.articulated > 0
             else iter(()),
