@@ -1550,10 +1550,10 @@ class DeformMatcher(Matcher):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        for name in ("rigid_frames", "rigid_frames_with_poses"):
-            frames = getattr(self, name)
-            if frames is None and name == "rigid_frames_with_poses":
-                continue
+        frame_sets = {"rigid_frames": self.rigid_frames}
+        if self.rigid_frames_with_poses is not None:
+            frame_sets["rigid_frames_with_poses"] = self.rigid_frames_with_poses
+        for name, frames in frame_sets.items():
             if isinstance(frames, str) or not isinstance(frames, (tuple, list)):
                 raise ValueError(f"{name} must be a tuple of frames among {RIGID_FRAMES}, got {frames!r}")
             bad = [f for f in frames if f not in RIGID_FRAMES]
@@ -1587,7 +1587,7 @@ class DeformMatcher(Matcher):
         poses: Sequence[tuple[str, FloatArray]], memo: dict[str, Any],
     ) -> Iterator[Hypothesis]:
         """:func:`pose_hypotheses`: the ``pose_keep`` best of :meth:`_ranked_poses` (made by an earlier start or on these samples)."""
-        if not poses or self.pose_keep <= 0:
+        if not self._has_pose_hypotheses(poses):
             return
         W, Nw = target.vertices[s2], target.vertex_normals[s2]
         for label, X, NX, _ in self._ranked_poses(source, target, s1, s2, poses, memo)[: self.pose_keep]:
@@ -1626,6 +1626,10 @@ class DeformMatcher(Matcher):
         """Start ``start``'s farthest-point samples of ``mesh`` (:func:`_start_vertex`): at most ``n_samples``."""
         first = _start_vertex(mesh.n_vertices, start, self.n_starts)
         return farthest_point_sampling(min(self.n_samples, mesh.n_vertices), points=mesh.vertices, first=first)
+
+    def _has_pose_hypotheses(self, poses: Sequence[tuple[str, FloatArray]]) -> bool:
+        """Whether a registration given ``poses`` verifies pose hypotheses (:meth:`_pose_hypotheses`)."""
+        return bool(poses) and self.pose_keep > 0
 
     def _rigid_frames(self, with_poses: bool) -> tuple[str, ...]:
         """The rigid hypotheses' frames: ``rigid_frames_with_poses`` in a registration with pose hypotheses, if set."""
@@ -1728,7 +1732,7 @@ class DeformMatcher(Matcher):
         # (the maps are between vertex indices: ``intrinsic`` has the source's vertices, in order)
         spectral = spectral_hypotheses(source if intrinsic is None else intrinsic, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
         extrinsic = chain(
-            rigid_hypotheses(source, target, s1, s2, self._rigid_frames(bool(poses) and self.pose_keep > 0)),
+            rigid_hypotheses(source, target, s1, s2, self._rigid_frames(self._has_pose_hypotheses(poses))),
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
             if self.articulated > 0
             else iter(()),

@@ -388,9 +388,10 @@ class TemplateMatcher(Matcher):
     def _deformer(self) -> DeformMatcher:
         # with training poses two starts and the best-fitting pose as a source (the best on
         # the training pairs, #86, #90); without, ACCURATE
+        trained = bool(getattr(self, "poses_", None))
         base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES, "feature_icp_iterations": FEATURE_ITERATIONS,
-                "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE} if getattr(self, "poses_", None) else dict(ACCURATE)
-        if self.quick and getattr(self, "poses_", None):
+                "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE} if trained else dict(ACCURATE)
+        if self.quick and trained:
             base.update(QUICK)
         if self.deform is not None and not isinstance(self.deform, Mapping):
             raise ValueError(f"template: deform must be a mapping of deform hyperparameters (e.g. {{'n_starts': 1}}), got {self.deform!r}")
