@@ -26,11 +26,14 @@ def flaky_registered(monkeypatch):
 
 
 def test_run_is_complete_and_resumable(tmp_path):
-    cfg = BenchmarkConfig(methods=["oracle", "descriptor-nn"], protocols=["shrec16", "topkids25"], params={"descriptor-nn": {"k": 40, "n_descriptors": 20}})
+    # four pairs per protocol: enough to lose some maps and resume
+    cfg = BenchmarkConfig(methods=["oracle", "descriptor-nn"], protocols=["shrec16", "topkids25"], max_pairs=4,
+                          params={"descriptor-nn": {"k": 40, "n_descriptors": 20}})
     out = tmp_path / "run"
     s1 = run_benchmark(cfg, out, progress=False)
     ora = s1["methods"]["oracle"]
     assert ora["shrec16"]["auc_mean"] == 1.0 and ora["topkids25"]["mean_error"]["dijkstra"] == 0.0
+    assert ora["shrec16"]["n_pairs"] == ora["topkids25"]["n_pairs"] == 4
     for key in ("n_pairs", "mean_error", "auc_mean", "auc_best", "auc_worst", "area_matched", "excluded_fraction", "seconds_per_pair_median", "seconds_per_pair_mean", "seconds_total", "peak_rss_mb"):
         assert key in s1["methods"]["descriptor-nn"]["shrec16"]
     man = json.loads((out / "manifest.json").read_text())
@@ -66,8 +69,8 @@ def test_failing_pair_is_recorded_not_fatal(tmp_path, flaky_registered):
 def test_reproducible_bit_for_bit_and_across_jobs(tmp_path):
     """Same command, same numbers, whatever --jobs is (eigenbases use one BLAS thread)."""
     params = {"descriptor-nn": {"k": 40, "n_descriptors": 20}}
-    cfg1 = BenchmarkConfig(methods=["descriptor-nn"], protocols=["topkids25"], split="test", jobs=1, params=params)
-    cfg2 = BenchmarkConfig(methods=["descriptor-nn"], protocols=["topkids25"], split="test", jobs=2, params=params)
+    cfg1 = BenchmarkConfig(methods=["descriptor-nn"], protocols=["topkids25"], split="test", jobs=1, max_pairs=2, params=params)
+    cfg2 = BenchmarkConfig(methods=["descriptor-nn"], protocols=["topkids25"], split="test", jobs=2, max_pairs=2, params=params)
     s1 = run_benchmark(cfg1, tmp_path / "a", progress=False)["methods"]["descriptor-nn"]["topkids25"]
     s1b = run_benchmark(cfg1, tmp_path / "a2", progress=False)["methods"]["descriptor-nn"]["topkids25"]
     s2 = run_benchmark(cfg2, tmp_path / "b", progress=False)["methods"]["descriptor-nn"]["topkids25"]

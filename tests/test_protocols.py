@@ -43,7 +43,7 @@ def test_oracle_scores_perfectly(builtin, protocol):
 
 def test_mirror_needs_symmetric_credit(builtin):
     p = get_protocol("shrec16")
-    maps = {("mirror", pr.id): gt_map(builtin, pr, mirrored=True) for pr in p.pairs(builtin)}
+    maps = {("mirror", pr.id): gt_map(builtin, pr, mirrored=True) for pr in p.pairs(builtin)[::3]}  # four pairs: each test shape once a target
     with_sym = summarize(score_maps(builtin, p, maps), p)
     assert with_sym["auc_mean"] == 1.0 and with_sym["symmetric_fraction"] == 1.0
     no_sym = summarize(score_maps(builtin, p.with_options(symmetric=False), maps), p)
@@ -53,7 +53,7 @@ def test_mirror_needs_symmetric_credit(builtin):
 def test_random_map_matches_its_expectation(builtin):
     """E[curve(t)] = mean over scored x of P_y(d(y*, y) <= t) for y uniform over vertices."""
     p = get_protocol("shrec16").with_options(symmetric=False)
-    pairs = p.pairs(builtin)[:3]
+    pairs = p.pairs(builtin)[:1]
     rng = np.random.default_rng(0)
     maps = {("random", pr.id): rng.integers(0, builtin[pr.source].n_vertices, builtin[pr.target].n_vertices) for pr in pairs}
     scores = score_maps(builtin, p, maps)
