@@ -1366,6 +1366,14 @@ class DeformMatcher(Matcher):
         with their own pose left out (0.018-0.055); with the two nearest training poses
         also left out (``K = 2``), only kid14 (0.063) and kid15 (0.104, the one map a
         challenger replaces) reach it. ``0``: always (attempt #136; #137 gates it).
+    features_after_choice : bool
+        When several registrations are refined: compare them (the choice, the folded
+        shares and the challengers' judgement) after the fine registration, and give only
+        the kept one the final stage with local features (``feature_icp_iterations``),
+        which then costs once per shape instead of once per refined run. ``False``
+        (default): every refined run gets it and the comparison comes after it. On the
+        15 training shapes the choice after the fine stage agreed with the choice after
+        the feature stage in 13 (attempt #144, ``docs/flagship.md``).
     """
 
     name = "deform"
@@ -1419,6 +1427,7 @@ class DeformMatcher(Matcher):
         challenge_margin: float = 0.01,
         challenge_above: float = 0.06,
         challenge_judge: str = "folded",
+        features_after_choice: bool = False,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1466,6 +1475,7 @@ class DeformMatcher(Matcher):
         self.challenge_margin = challenge_margin
         self.challenge_above = challenge_above
         self.challenge_judge = challenge_judge
+        self.features_after_choice = features_after_choice
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches"):
@@ -1538,6 +1548,8 @@ class DeformMatcher(Matcher):
                 raise ValueError(f"{name} must be a number in [0, 1], got {v!r}")
         if self.challenge_judge not in ("folded", "score"):
             raise ValueError(f"challenge_judge must be 'folded' or 'score', got {self.challenge_judge!r}")
+        if not isinstance(self.features_after_choice, (bool, np.bool_)):
+            raise ValueError(f"features_after_choice must be True or False, got {self.features_after_choice!r}")
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
@@ -1789,12 +1801,11 @@ class DeformMatcher(Matcher):
         graph: DeformationGraph,
         start: int = 0,
         intrinsic: TriangleMesh | None = None,
+        features: bool = True,
     ) -> tuple[int, RegistrationResult, list[tuple[str, int]], dict[str, tuple[float, float]], list[dict]]:
-        """Steps 3-6: swaps, continuation and choice, limb turns, fine registration (the last with the local features of ``intrinsic``, default ``source``)."""
+        """Steps 3-6: swaps, continuation and choice, limb turns, fine registration (the last with the local features of ``intrinsic``, default ``source``; ``features=False`` stops before it)."""
         W = target.vertices
-        fine_graph = build_deformation_graph(
-            source.vertices, source.faces, min(self.fine_nodes, source.n_vertices), first=_start_vertex(source.n_vertices, start, self.n_starts)
-        )
+        fine_graph = self._fine_graph(source, start)
         fine = RegistrationSchedule(
             n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.fine_icp_iterations, alpha_icp=tuple(self.fine_alpha),
             sigma_icp=FINE_SIGMA,
@@ -1832,15 +1843,32 @@ class DeformMatcher(Matcher):
             limbs, r_best = [], None
         if r_best is None:
             r_best = register(source.vertices, source.faces, W, target.faces, None, fine, graph=fine_graph, start=starts[i_best], n_threads=self._n_threads())
-        if self.feature_icp_iterations > 0 and self.feature_weight > 0:
-            features = local_wks_features(source if intrinsic is None else intrinsic, target, k=self.k_zoomout)
-            last = RegistrationSchedule(
-                n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.feature_icp_iterations,
-                alpha_icp=FEATURE_ALPHA, sigma_icp=FEATURE_SIGMA, feature_weight=(float(self.feature_weight), 0.0),
-            )
-            r_best = register(source.vertices, source.faces, W, target.faces, None, last, graph=fine_graph, start=r_best.deformed,
-                              n_threads=self._n_threads(), features=features)
+        if features and self._has_feature_stage():
+            r_best = self._feature_stage(source, target, fine_graph, r_best.deformed, intrinsic)
         return i_best, r_best, swaps, continued, limbs
+
+    def _fine_graph(self, source: TriangleMesh, start: int) -> DeformationGraph:
+        """The deformation graph of the fine and feature stages (one per source and sampling start)."""
+        return build_deformation_graph(
+            source.vertices, source.faces, min(self.fine_nodes, source.n_vertices), first=_start_vertex(source.n_vertices, start, self.n_starts)
+        )
+
+    def _feature_stage(
+        self, source: TriangleMesh, target: TriangleMesh, fine_graph: DeformationGraph, fine: FloatArray, intrinsic: TriangleMesh | None
+    ) -> RegistrationResult | None:
+        """Step 6's last stage: the fine registration's vertices ``fine`` registered on with the local features of ``intrinsic`` (default ``source``); ``None`` when the stage is off."""
+        if not self._has_feature_stage():
+            return None
+        features = local_wks_features(source if intrinsic is None else intrinsic, target, k=self.k_zoomout)
+        last = RegistrationSchedule(
+            n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.feature_icp_iterations,
+            alpha_icp=FEATURE_ALPHA, sigma_icp=FEATURE_SIGMA, feature_weight=(float(self.feature_weight), 0.0),
+        )
+        return register(source.vertices, source.faces, target.vertices, target.faces, None, last, graph=fine_graph, start=fine,
+                        n_threads=self._n_threads(), features=features)
+
+    def _has_feature_stage(self) -> bool:
+        return self.feature_icp_iterations > 0 and self.feature_weight > 0
 
     def _turn_limbs(
         self,
@@ -2048,6 +2076,10 @@ class DeformMatcher(Matcher):
             return out
 
         finished: dict[int, tuple[float, FloatArray, dict[str, Any]]] = {}
+        # features_after_choice: the runs are refined up to the fine registration and compared
+        # there; their vertices on the working copies wait here for the kept run's feature stage
+        after = bool(self.features_after_choice) and self._has_feature_stage()
+        before_features: dict[int, FloatArray] = {}
 
         def refine(ks: list[int]) -> None:
             """Refine the runs ``pending[k]`` into ``finished[k]`` (their score, the source's vertices, the info)."""
@@ -2058,10 +2090,12 @@ class DeformMatcher(Matcher):
                 solo = copy.copy(self)
                 solo.n_threads = 1
                 with one_blas_thread():
-                    refined = _thread_map(lambda k: solo._refined(pending[k][0]), ks, self._n_threads())
+                    refined = _thread_map(lambda k: solo._refined(pending[k][0], features=not after), ks, self._n_threads())
             else:
-                refined = [self._refined(pending[k][0]) for k in ks]
+                refined = [self._refined(pending[k][0], features=not after) for k in ks]
             for k, (deformed, info) in zip(ks, refined):
+                if after:
+                    before_features[k] = deformed
                 v, run, back, home = pending[k]
                 if run["source_pose"] is not None:
                     info["hypothesis"] = f"posed {run['source_pose']}: {info['hypothesis']}"
@@ -2073,6 +2107,21 @@ class DeformMatcher(Matcher):
                 info["run"] = k
                 finished[k] = (run["score"], deformed, info)
             seconds["refinement"] += time.perf_counter() - t2
+
+        def add_features(k: int) -> None:
+            """The feature stage for the refined run ``k`` alone (``features_after_choice``): ``finished[k]`` updated."""
+            t3 = time.perf_counter()
+            v, run, back, home = pending[k]
+            with one_blas_thread():
+                r = self._feature_stage(v.source, v.target, self._fine_graph(v.source, v.start), before_features[k], v.intrinsic)
+            deformed, residual = carried(r.deformed, v, back, home)
+            info = finished[k][2]
+            run.update(fine_score=run["score"], full_residual=residual, score=residual + self.distortion_weight * float(r.distortion))
+            info.update(residual=r.residual, distortion=r.distortion, features_after_choice=True)
+            dt = time.perf_counter() - t3
+            info["seconds"]["refinement"] += dt
+            seconds["refinement"] += dt
+            finished[k] = (run["score"], deformed, info)
 
         folded: dict[int, float] = {}
 
@@ -2118,6 +2167,8 @@ class DeformMatcher(Matcher):
             if k_new != k_best:
                 challenge["replaced"] = {"chosen": k_best, "by": k_new}
                 k_best = k_new
+        if after:
+            add_features(k_best)
         _, deformed, info = finished[k_best]
         info["runs"] = [run for _, run, _, _ in pending]
         if challenge is not None:
@@ -2158,12 +2209,12 @@ class DeformMatcher(Matcher):
         hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic)
         return _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic)
 
-    def _refined(self, v: _Verified) -> tuple[FloatArray, dict[str, Any]]:
-        """Steps 3-6 of a verified registration: the deformed source and the diagnostics."""
+    def _refined(self, v: _Verified, features: bool = True) -> tuple[FloatArray, dict[str, Any]]:
+        """Steps 3-6 of a verified registration (``features=False``: without the feature stage): the deformed source and the diagnostics."""
         t1 = time.perf_counter()
         with one_blas_thread():
             i_best, r_best, swaps, continued, limbs = self._refine(
-                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.intrinsic
+                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.intrinsic, features
             )
         info = {
             "hypothesis": v.hyps[i_best].label,
