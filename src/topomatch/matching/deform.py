@@ -1371,9 +1371,10 @@ class DeformMatcher(Matcher):
         shares and the challengers' judgement) after the fine registration, and give only
         the kept one the final stage with local features (``feature_icp_iterations``),
         which then costs once per shape instead of once per refined run. ``False``
-        (default): every refined run gets it and the comparison comes after it. On the
-        15 training shapes the choice after the fine stage agreed with the choice after
-        the feature stage in 13 (attempt #144, ``docs/flagship.md``).
+        (default): every refined run gets it and the comparison comes after it. ``template``
+        with training poses, training pairs (leave-one-out, Dijkstra x100): 1.6901 ->
+        1.7310 at 0.94 of the time per pair; kid06's near tie goes to the run that ends
+        worse (attempts #144 and #151, ``docs/flagship.md``).
     """
 
     name = "deform"
