@@ -82,6 +82,17 @@ def test_malformed_off_names_file_and_line(tmp_path, text, match):
     assert "bad.off" in str(err.value)
 
 
+def test_a_file_without_faces_is_not_a_mesh(tmp_path):
+    from topomatch.mesh import TriangleMesh
+
+    p = tmp_path / "points.off"
+    p.write_text("OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n")
+    v, f = read_mesh(p)  # a point cloud is a valid file
+    assert v.shape == (3, 3) and f.shape == (0, 3)
+    with pytest.raises(ValueError, match=r"points\.off: no faces"):
+        TriangleMesh.from_file(p)
+
+
 def test_unknown_suffix_and_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="no such mesh"):
         read_mesh(tmp_path / "nope.off")

@@ -74,6 +74,8 @@ class TriangleMesh:
         from topomatch.io import read_mesh
 
         v, f = read_mesh(path)
+        if len(f) == 0:  # a valid file (a point cloud) but not a mesh: say which file
+            raise ValueError(f"{path}: no faces (a mesh needs at least one)")
         return cls(v, f, name=Path(path).stem if name is None else name)
 
     def __repr__(self) -> str:
