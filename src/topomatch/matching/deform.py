@@ -1856,10 +1856,8 @@ class DeformMatcher(Matcher):
 
     def _feature_stage(
         self, source: TriangleMesh, target: TriangleMesh, fine_graph: DeformationGraph, fine: FloatArray, intrinsic: TriangleMesh | None
-    ) -> RegistrationResult | None:
-        """Step 6's last stage: the fine registration's vertices ``fine`` registered on with the local features of ``intrinsic`` (default ``source``); ``None`` when the stage is off."""
-        if not self._has_feature_stage():
-            return None
+    ) -> RegistrationResult:
+        """Step 6's last stage (when :meth:`_has_feature_stage`): the fine registration's vertices ``fine`` registered on with the local features of ``intrinsic`` (default ``source``)."""
         features = local_wks_features(source if intrinsic is None else intrinsic, target, k=self.k_zoomout)
         last = RegistrationSchedule(
             n_nodes=fine_graph.n_nodes, fit_iterations=0, icp_iterations=self.feature_icp_iterations,
@@ -1869,6 +1867,7 @@ class DeformMatcher(Matcher):
                         n_threads=self._n_threads(), features=features)
 
     def _has_feature_stage(self) -> bool:
+        """Whether the registrations end with the feature stage (``feature_icp_iterations`` and ``feature_weight`` both above 0)."""
         return self.feature_icp_iterations > 0 and self.feature_weight > 0
 
     def _turn_limbs(
