@@ -123,3 +123,170 @@ def farthest_points(cols, first, out):  # pragma: no cover - compiled
                 best = i
         cur = best
 
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def rotation_step(
+    positions, rest, dir_a, dir_b, dir_rest, wl, vertices, skin_indptr, skin_indices, skin_data, source, c, points, previous, out
+):  # pragma: no cover - compiled
+    """The embedded deformation's Procrustes step into ``out`` (m, 3, 3): each node's best rotation.
+
+    Bit for bit the numpy and SciPy formula it replaced (``GraphDeformation.update_rotations``
+    before session 49), without holding the GIL:
+
+    - the link sums ``S_a = sum_k (wl_k e_k) cur_k^T`` over the directed links ``k = a -> b``
+      in link order (``e_k`` the rest offset, ``cur_k = g_b - g_a``; the order in which
+      ``Ia @ outer`` adds them);
+    - the data sums over the pairs in pair order and each pair's skinning entries in
+      stored order (the order of ``csc_matvecs`` for ``skin[source].T @ X``): per node
+      ``sum P c v y^T``, ``sum P c v``, ``sum P c y``, ``sum P c``, combined as
+      ``((S_vy - sv g^T) - g0 sy^T) + (sc g0) g^T``;
+    - the rotation maximising ``tr(R S)`` from LAPACK's SVD of ``S + 1e-12 I``
+      (``R = V U^T``, ``V``'s last column negated when ``det < 0``), the previous rotation
+      kept where the trace of ``|S|`` is below 1e-300.
+
+    ``source`` of length zero means no data term. ``c`` holds the pairs' weights already
+    multiplied by the data weight. The caller passes ``out`` as the transpose of a
+    C-ordered (m, 3, 3) array (strides (72, 8, 24)), the layout numpy's ``einsum`` gave
+    the rotations before: the products with them elsewhere (``einsum`` over the
+    rotations of the links) then add in the same order as before.
+    """
+    m = rest.shape[0]
+    S = np.zeros((m, 3, 3))
+    for k in range(dir_a.shape[0]):
+        a_node = dir_a[k]
+        b_node = dir_b[k]
+        for a in range(3):
+            t = wl[k] * dir_rest[k, a]
+            for b in range(3):
+                S[a_node, a, b] += t * (positions[b_node, b] - positions[a_node, b])
+    if source.shape[0] > 0:
+        sums = np.zeros((m, 16))
+        x = np.empty(16)
+        for p in range(source.shape[0]):
+            i = source[p]
+            cp = c[p]
+            for a in range(3):
+                cv = cp * vertices[i, a]
+                for b in range(3):
+                    x[3 * a + b] = cv * points[p, b]
+                x[9 + a] = cv
+                x[12 + a] = cp * points[p, a]
+            x[15] = cp
+            for e in range(skin_indptr[i], skin_indptr[i + 1]):
+                node = skin_indices[e]
+                w = skin_data[e]
+                for j in range(16):
+                    sums[node, j] += w * x[j]
+        for n in range(m):
+            for a in range(3):
+                for b in range(3):
+                    S[n, a, b] += (
+                        (sums[n, 3 * a + b] - sums[n, 9 + a] * positions[n, b]) - rest[n, a] * sums[n, 12 + b]
+                    ) + (sums[n, 15] * rest[n, a]) * positions[n, b]
+    M = np.empty((3, 3))
+    for n in range(m):
+        if abs(S[n, 0, 0]) + abs(S[n, 1, 1]) + abs(S[n, 2, 2]) < 1e-300:
+            out[n] = previous[n]
+            continue
+        for a in range(3):
+            for b in range(3):
+                M[a, b] = S[n, a, b] + (1e-12 if a == b else 0.0)
+        U, _, Vt = np.linalg.svd(M)
+        for i in range(3):
+            for k in range(3):
+                out[n, i, k] = Vt[0, i] * U[k, 0] + Vt[1, i] * U[k, 1] + Vt[2, i] * U[k, 2]
+        if np.linalg.det(out[n]) < 0:
+            for i in range(3):
+                for k in range(3):
+                    out[n, i, k] = Vt[0, i] * U[k, 0] + Vt[1, i] * U[k, 1] - Vt[2, i] * U[k, 2]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def skinned_vertices(rotations, rest, indptr, indices, data, vertices, rows, every, positions, add_positions, out):  # pragma: no cover
+    """Embedded-deformation vertices into ``out``: ``sum_q w_iq R_q (v_i - g0_q)`` (+ ``sum_q w_iq g_q``).
+
+    For the vertices ``rows`` (``every``: all vertices, ``rows`` ignored), skinning
+    weights from the CSR arrays ``indptr, indices, data`` (sorted indices), the
+    translation part ``sum_q w_iq g_q`` added when ``add_positions``. Bit for bit the
+    numpy and SciPy formula it replaced (``GraphDeformation._affine_part`` and
+    ``deformed`` before session 49) with numpy 2.4 on x86-64: the blends
+    ``sum_q w_iq [R_q, R_q g0_q]`` and ``sum_q w_iq g_q`` summed over the row's entries
+    in order from zero (``csr_matvecs``); ``R_q g0_q`` summed in order and ``B_i v_i`` as
+    ``(x_0 y_0 + x_2 y_2) + x_1 y_1``, the orders in which numpy's ``einsum`` adds them
+    there (the rotations are stored 3 x 3 transposed, see :func:`rotation_step`; the
+    blends' rows are contiguous, which einsum adds in two SIMD lanes); then ``- b_i``
+    and the translation added.
+    """
+    m = rest.shape[0]
+    X = np.empty((m, 12))
+    for q in range(m):
+        for a in range(3):
+            for b in range(3):
+                X[q, 3 * a + b] = rotations[q, a, b]
+            X[q, 9 + a] = (rotations[q, a, 0] * rest[q, 0] + rotations[q, a, 1] * rest[q, 1]) + rotations[q, a, 2] * rest[q, 2]
+    n_out = vertices.shape[0] if every else rows.shape[0]
+    blend = np.empty(12)
+    shift = np.empty(3)
+    for r in range(n_out):
+        i = r if every else rows[r]
+        for j in range(12):
+            blend[j] = 0.0
+        for j in range(3):
+            shift[j] = 0.0
+        for e in range(indptr[i], indptr[i + 1]):
+            q = indices[e]
+            w = data[e]
+            for j in range(12):
+                blend[j] += w * X[q, j]
+            if add_positions:
+                for j in range(3):
+                    shift[j] += w * positions[q, j]
+        for a in range(3):
+            t = ((blend[3 * a] * vertices[i, 0] + blend[3 * a + 2] * vertices[i, 2]) + blend[3 * a + 1] * vertices[i, 1]) - blend[9 + a]
+            out[r, a] = t + shift[a] if add_positions else t
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def skin_transpose_product(indptr, indices, data, source, X, out):  # pragma: no cover - compiled
+    """``out += skin[source].T @ X`` without building ``skin[source]``; ``out`` (m, r), ``X`` (p, r).
+
+    The pairs in order, each pair's skinning entries in stored order: the order in which
+    SciPy's ``csc_matvecs`` adds them, so the same bits from a zeroed ``out``.
+    """
+    r = X.shape[1]
+    for p in range(source.shape[0]):
+        i = source[p]
+        for e in range(indptr[i], indptr[i + 1]):
+            q = indices[e]
+            w = data[e]
+            for j in range(r):
+                out[q, j] += w * X[p, j]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def gram_entries(vp_indptr, vp_indices, vp_data, n_vertices, source, weights, out):  # pragma: no cover - compiled
+    """``out[e, j] = sum_i vp[i, e] sum_{p: source_p = i} weights[p, j]``: the Gram matrices' upper triangles.
+
+    ``vp`` is ``_GramPattern.vertex_products`` (CSR arrays); ``out`` (n_entries, k) zeroed.
+    Bit for bit ``_GramPattern.grams`` before session 49: the per-vertex sums in pair
+    order (``np.bincount``), then the vertices with a non-zero sum in order, each
+    row's entries in stored order (``csc_matvecs`` of ``vp[active].T @ per_vertex[active]``).
+    """
+    k = weights.shape[1]
+    per_vertex = np.zeros((n_vertices, k))
+    for p in range(source.shape[0]):
+        for j in range(k):
+            per_vertex[source[p], j] += weights[p, j]
+    for i in range(n_vertices):
+        active = False
+        for j in range(k):
+            if per_vertex[i, j] != 0.0:
+                active = True
+        if not active:
+            continue
+        for e in range(vp_indptr[i], vp_indptr[i + 1]):
+            q = vp_indices[e]
+            w = vp_data[e]
+            for j in range(k):
+                out[q, j] += w * per_vertex[i, j]

@@ -32,6 +32,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from topomatch._kernels import gram_entries, rotation_step, skin_transpose_product, skinned_vertices
 from topomatch._lapack import cholesky_solve
 from topomatch.deform.graph import DeformationGraph
 from topomatch.deform.kdtree import JointTree, PointTree
@@ -102,21 +103,11 @@ def _robust_weights(normals: FloatArray, other_normals: FloatArray, d: FloatArra
     return np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
 
 
-def _procrustes(S: FloatArray) -> FloatArray:
-    """Rotations ``R`` maximising ``tr(R S)`` for a stack ``S`` of shape (m, 3, 3).
+_NO_ROWS = np.zeros(0, dtype=np.int64)
+"""The ``rows`` argument of :func:`skinned_vertices` for every vertex."""
 
-    ``S = sum x y^T``; the result minimises ``sum ||R x - y||^2``.
-    """
-    U, _, Vt = np.linalg.svd(S)
-    R = np.einsum("mji,mkj->mik", Vt, U)  # V U^T
-    det = np.linalg.det(R)
-    flip = det < 0
-    if np.any(flip):
-        Vt2 = Vt[flip].copy()
-        Vt2[:, 2, :] *= -1
-        R[flip] = np.einsum("mji,mkj->mik", Vt2, U[flip])
-    return R
-
+_NO_PAIRS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
+"""Arguments of :func:`rotation_step` for a step without data pairs."""
 
 _DENSE_SOLVE_MAX = 600
 """Linear systems of the position step up to this size are factorised densely (LAPACK);
@@ -332,10 +323,13 @@ class _GramPattern:
         -------
         ndarray, shape (n_entries, k)
         """
-        n = self.vertex_products.shape[0]
-        per_vertex = np.stack([np.bincount(source, weights=weights[:, j], minlength=n) for j in range(weights.shape[1])], axis=1)
-        active = np.flatnonzero(np.any(per_vertex != 0, axis=1))
-        return np.asarray(self.vertex_products[active].T @ per_vertex[active])
+        vp = self.vertex_products
+        out = np.zeros((vp.shape[1], weights.shape[1]))
+        gram_entries(
+            vp.indptr, vp.indices, vp.data, vp.shape[0], np.ascontiguousarray(source, dtype=np.int64),
+            np.ascontiguousarray(weights, dtype=np.float64), out,
+        )
+        return out
 
     def laplacian(self, weights: FloatArray) -> FloatArray:
         """Upper triangle of ``D diag(w) D^T`` over the directed links, shape (n_entries,).
@@ -470,35 +464,37 @@ class GraphDeformation:
         self._lg: FloatArray | None = None
         self._lg_scale: FloatArray | None = None
         self._last = _LastFactor()
-        self._rows: tuple[IndexArray, sparse.csr_matrix] | None = None
 
-    def _skin_rows(self, source: IndexArray) -> sparse.csr_matrix:
-        """``skin[source]``, kept for the same index array (an iteration's rotation and position steps share their pairs)."""
-        if self._rows is None or self._rows[0] is not source:
-            self._rows = (source, self._skin[source])
-        return self._rows[1]
+    def _skin_transpose(self, source: IndexArray, X: FloatArray) -> FloatArray:
+        """``skin[source].T @ X``, shape (m, r), compiled (no row gather, no GIL)."""
+        out = np.zeros((self.graph.n_nodes, X.shape[1]))
+        S = self._skin
+        skin_transpose_product(S.indptr, S.indices, S.data, source, np.ascontiguousarray(X, dtype=np.float64), out)
+        return out
 
     # ---- evaluation ------------------------------------------------------------------------
-    def _affine_part(self, subset: IndexArray | None = None, skin_rows: sparse.csr_matrix | None = None) -> FloatArray:
+    def _affine_part(self, subset: IndexArray | None = None) -> FloatArray:
         """``a_i = sum_q w_iq R_q (v_i - g0_q)`` for all vertices or a subset, shape (n or len(subset), 3).
 
-        Evaluated as ``(sum_q w_iq R_q) v_i - sum_q w_iq R_q g0_q``: two sparse products
-        with the skinning weights, no per-(vertex, node) rotation copies.
-        ``skin_rows`` may pass ``skin[subset]`` when the caller already has it.
+        Evaluated as ``(sum_q w_iq R_q) v_i - sum_q w_iq R_q g0_q`` per vertex, compiled
+        (:func:`topomatch._kernels.skinned_vertices`, without the GIL).
         """
-        m = self.graph.n_nodes
-        if subset is None:
-            S, v = self._skin, self.vertices
-        else:
-            S = self._skin[subset] if skin_rows is None else skin_rows
-            v = self.vertices[subset]
-        Rg0 = np.einsum("mab,mb->ma", self.rotations, self.graph.rest)
-        blend = np.asarray(S @ np.c_[self.rotations.reshape(m, 9), Rg0])
-        return np.einsum("nab,nb->na", blend[:, :9].reshape(-1, 3, 3), v) - blend[:, 9:]
+        return self._skinned(subset, with_positions=False)
+
+    def _skinned(self, subset: IndexArray | None, *, with_positions: bool) -> FloatArray:
+        every = subset is None
+        rows = _NO_ROWS if subset is None else np.ascontiguousarray(subset, dtype=np.int64)
+        out = np.empty((len(self.vertices) if every else len(rows), 3))
+        S = self._skin
+        skinned_vertices(
+            self.rotations, self.graph.rest, S.indptr, S.indices, S.data, self.vertices, rows, every,
+            self.positions, with_positions, out,
+        )
+        return out
 
     def deformed(self) -> FloatArray:
         """Deformed source vertices, shape (n, 3)."""
-        return self._affine_part() + self._skin @ self.positions
+        return self._skinned(None, with_positions=True)
 
     def deformed_normals(self, deformed: FloatArray | None = None) -> FloatArray:
         """Compute unit vertex normals of the deformed source, shape (n, 3)."""
@@ -518,29 +514,29 @@ class GraphDeformation:
         return np.r_[w, w]
 
     def update_rotations(self, pairs: DataPairs | None, data_weight: float = 1.0) -> None:
-        """Procrustes step: best rotation per node for the current positions."""
-        m = self.graph.n_nodes
+        """Procrustes step: best rotation per node for the current positions.
+
+        Compiled (:func:`topomatch._kernels.rotation_step`, without the GIL): the same
+        bits as the numpy and SciPy formula it replaced, which
+        ``tests/test_register_kernels.py`` keeps as the reference.
+        """
         wl = self._link_weights()
-        cur = self.positions[self._dir_b] - self.positions[self._dir_a]
-        outer = (wl[:, None, None] * self._dir_rest[:, :, None] * cur[:, None, :]).reshape(-1, 9)
-        S = np.asarray(self._Ia @ outer).reshape(m, 3, 3)
         if pairs is not None and len(pairs.source) and data_weight > 0:
-            # S_a += sum_i P_ia c_i (v_i - g0_a)(y_i - g_a)^T, expanded into sparse products
-            Pt = self._skin_rows(pairs.source).T  # (m, p), CSC: the products sum over pairs in order, as with CSR
+            source = np.ascontiguousarray(pairs.source, dtype=np.int64)
             c = data_weight * pairs.weights
-            v = self.vertices[pairs.source]
-            y = pairs.points
-            cv = c[:, None] * v
-            vy = (cv[:, :, None] * y[:, None, :]).reshape(-1, 9)
-            sums = np.asarray(Pt @ np.c_[vy, cv, c[:, None] * y, c])  # one sparse product for all four sums
-            S_vy = sums[:, :9].reshape(m, 3, 3)
-            sv, sy, sc = sums[:, 9:12], sums[:, 12:15], sums[:, 15]
-            g0, g = self.graph.rest, self.positions
-            S += S_vy - sv[:, :, None] * g[:, None, :] - g0[:, :, None] * sy[:, None, :] + sc[:, None, None] * g0[:, :, None] * g[:, None, :]
-        tiny = np.einsum("mii->m", np.abs(S)) < 1e-300
-        R = _procrustes(S + 1e-12 * np.eye(3))
-        R[tiny] = self.rotations[tiny]
-        self.rotations = R
+            points = np.ascontiguousarray(pairs.points, dtype=np.float64)
+        else:
+            source, c, points = _NO_PAIRS
+        skin = self._skin
+        # stored 3 x 3 transposed (strides (72, 8, 24)): the layout of the rotations
+        # before session 49, in which numpy's einsum over them adds in the same order
+        out = np.empty((len(self.rotations), 3, 3)).transpose(0, 2, 1)
+        rotation_step(
+            self.positions, self.graph.rest, self._dir_a, self._dir_b, self._dir_rest, wl, self.vertices,
+            skin.indptr, skin.indices, skin.data, source, np.ascontiguousarray(c, dtype=np.float64), points,
+            self.rotations, out,
+        )
+        self.rotations = out
 
     def _regulariser(self, wl: FloatArray) -> FloatArray:
         """``D diag(wl) D^T`` (the graph Laplacian of the link term) on the Gram pattern, kept while the link weights stay."""
@@ -567,17 +563,16 @@ class GraphDeformation:
         Lg = self._regulariser(wl)
         rhs = self._D @ (wl[:, None] * d)  # (m, 3)
         # data
-        P = self._skin_rows(pairs.source)  # (p, m)
-        PT = P.T  # CSC view, (m, p)
-        resid = pairs.points - self._affine_part(pairs.source, P)  # y - a_i, (p, 3)
+        source = np.ascontiguousarray(pairs.source, dtype=np.int64)
+        resid = pairs.points - self._affine_part(source)  # y - a_i, (p, 3)
         c = pairs.weights
         data_scale = float(c.sum()) / max(float(wl.sum()), 1e-300)
         reg = alpha * data_scale
-        r = reg * rhs + PT @ (mu_point * c[:, None] * resid)
+        r = reg * rhs + self._skin_transpose(source, mu_point * c[:, None] * resid)
         if mu_plane > 0:
             nrm = pairs.normals
             proj = np.einsum("pc,pc->p", nrm, resid)
-            r = r + PT @ ((mu_plane * c * proj)[:, None] * nrm)
+            r = r + self._skin_transpose(source, (mu_plane * c * proj)[:, None] * nrm)
             ij = [(i, j) for i in range(3) for j in range(i, 3)]
             w = np.stack([mu_plane * c * nrm[:, i] * nrm[:, j] + (mu_point * c if i == j else 0.0) for i, j in ij], axis=1)
             G = self._pattern.grams(pairs.source, w)
