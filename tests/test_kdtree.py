@@ -126,3 +126,26 @@ def test_joint_tree_rejects_bad_input():
         tree.query(np.zeros((2, 5)))
     with pytest.raises(ValueError, match="expected 4 points"):
         tree.refit(np.zeros((5, 6)))
+
+
+def test_hints_give_the_same_answers_ties_included():
+    rng = np.random.default_rng(3)
+    P = rng.standard_normal((2000, 3))
+    P = np.r_[P, P[:300]]  # coincident points: exact distance ties
+    RN = _unit(rng.standard_normal((len(P), 3)))
+    RN[2000:] = RN[:300]  # the copies agree in normal too, so either could answer
+    tree = PointTree(P)
+    Q = P[rng.integers(0, len(P), 800)] + 0.05 * rng.standard_normal((800, 3))
+    Q[:100] = P[:100]  # queries on coincident points: a tie at distance 0
+    NQ = _unit(rng.standard_normal((len(Q), 3)))
+    for k, min_cos in ((1, 0.0), (8, 0.3), (8, 0.9)):
+        want_i, want_d = tree.nearest_compatible(Q, NQ, RN, k=k, min_cos=min_cos)
+        assert np.any(want_i[:100] < 300)  # the ties are real: one copy is taken, not the other
+        for hint in (want_i, rng.integers(-1, len(P), len(Q)), (want_i + 300) % len(P)):
+            i, d = tree.nearest_compatible(Q, NQ, RN, k=k, min_cos=min_cos, hint=hint)
+            np.testing.assert_array_equal(i, want_i)
+            np.testing.assert_array_equal(d, want_d)
+    with pytest.raises(ValueError, match="hint"):
+        tree.nearest_compatible(Q, NQ, RN, hint=np.zeros(3, dtype=np.int64))
+    with pytest.raises(ValueError, match="hint"):
+        tree.nearest_compatible(Q, NQ, RN, hint=np.full(len(Q), len(P)))

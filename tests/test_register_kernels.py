@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import sparse
 
 from topomatch.datasets.toy import icosphere
 from topomatch.deform.graph import build_deformation_graph
@@ -34,7 +35,9 @@ def _reference_rotations(D: GraphDeformation, pairs: DataPairs | None, data_weig
     wl = D._link_weights()
     cur = D.positions[D._dir_b] - D.positions[D._dir_a]
     outer = (wl[:, None, None] * D._dir_rest[:, :, None] * cur[:, None, :]).reshape(-1, 9)
-    S = np.asarray(D._Ia @ outer).reshape(m, 3, 3)
+    nd = len(D._dir_a)
+    Ia = sparse.csr_matrix((np.ones(nd), (D._dir_a, np.arange(nd))), shape=(m, nd))
+    S = np.asarray(Ia @ outer).reshape(m, 3, 3)
     if pairs is not None and len(pairs.source) and data_weight > 0:
         Pt = D._skin[pairs.source].T
         c = data_weight * pairs.weights
@@ -120,3 +123,58 @@ def test_skinned_vertices_equal_the_numpy_formula(deformation, seed):
     D.rotations = np.tile(np.eye(3), (m, 1, 1))
     D.positions = D.graph.rest.copy()
     np.testing.assert_allclose(D.deformed(), D.vertices, atol=1e-12)  # at rest: the source itself
+
+
+def _reference_position_terms(D, pairs, alpha, mu_point, mu_plane):
+    """The right-hand side and Gram weights of ``update_positions`` before session 49."""
+    m = D.graph.n_nodes
+    nd = len(D._dir_a)
+    Ia = sparse.csr_matrix((np.ones(nd), (D._dir_a, np.arange(nd))), shape=(m, nd))
+    Ib = sparse.csr_matrix((np.ones(nd), (D._dir_b, np.arange(nd))), shape=(m, nd))
+    wl = D._link_weights()
+    d = np.einsum("kab,kb->ka", D.rotations[D._dir_a], D._dir_rest)
+    rhs = (Ib - Ia).tocsr() @ (wl[:, None] * d)
+    PT = D._skin[pairs.source].T
+    resid = pairs.points - _reference_affine(D, pairs.source)
+    c = pairs.weights
+    reg = alpha * float(c.sum()) / max(float(wl.sum()), 1e-300)
+    r = reg * rhs + PT @ (mu_point * c[:, None] * resid)
+    if mu_plane > 0:
+        nrm = pairs.normals
+        r = r + PT @ ((mu_plane * c * np.einsum("pc,pc->p", nrm, resid))[:, None] * nrm)
+        ij = [(i, j) for i in range(3) for j in range(i, 3)]
+        w = np.stack([mu_plane * c * nrm[:, i] * nrm[:, j] + (mu_point * c if i == j else 0.0) for i, j in ij], axis=1)
+    else:
+        w = (mu_point * c)[:, None]
+    return reg, r, w
+
+
+@pytest.mark.parametrize("mu_plane", [0.0, 0.7])
+def test_position_terms_equal_the_numpy_formula(deformation, mu_plane):
+    from topomatch._kernels import position_terms
+
+    rng = np.random.default_rng(11)
+    D = deformation
+    m, n = D.graph.n_nodes, len(D.vertices)
+    D.positions = D.graph.rest + 0.3 * rng.standard_normal((m, 3))
+    D.rotations = np.linalg.qr(rng.standard_normal((m, 3, 3)))[0]
+    D.link_scale = rng.uniform(0.1, 1.0, len(D.graph.links))
+    src = rng.integers(0, n, 2 * n)
+    normals = rng.standard_normal((len(src), 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    pairs = DataPairs(src, D.vertices[src] + 0.2 * rng.standard_normal((len(src), 3)), normals, rng.uniform(0, 1, len(src)))
+    reg, want_r, want_w = _reference_position_terms(D, pairs, 0.5, 0.1, mu_plane)
+    r = np.empty((m, 3))
+    w = np.empty((len(src), want_w.shape[1]))
+    S = D._skin
+    resid = pairs.points - D._affine_part(src)
+    position_terms(D.rotations, D._dir_a, D._dir_b, D._dir_rest, D._link_weights(), S.indptr, S.indices, S.data, src, pairs.weights, resid, pairs.normals, reg, 0.1, mu_plane, r, w)
+    np.testing.assert_allclose(r, want_r, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(w, want_w, rtol=0, atol=1e-13)
+    # and the step itself moves the nodes to the solution of its system: a second step
+    # from there, with the rotations unchanged, stays put
+    D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=mu_plane)
+    before = D.positions.copy()
+    D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=mu_plane)
+    np.testing.assert_allclose(D.positions, before, atol=1e-6)
+    D.link_scale = np.ones(len(D.graph.links))

@@ -248,23 +248,6 @@ def skinned_vertices(rotations, rest, indptr, indices, data, vertices, rows, eve
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False)
-def skin_transpose_product(indptr, indices, data, source, X, out):  # pragma: no cover - compiled
-    """``out += skin[source].T @ X`` without building ``skin[source]``; ``out`` (m, r), ``X`` (p, r).
-
-    The pairs in order, each pair's skinning entries in stored order: the order in which
-    SciPy's ``csc_matvecs`` adds them, so the same bits from a zeroed ``out``.
-    """
-    r = X.shape[1]
-    for p in range(source.shape[0]):
-        i = source[p]
-        for e in range(indptr[i], indptr[i + 1]):
-            q = indices[e]
-            w = data[e]
-            for j in range(r):
-                out[q, j] += w * X[p, j]
-
-
-@numba.njit(cache=True, nogil=True, fastmath=False)
 def gram_entries(vp_indptr, vp_indices, vp_data, n_vertices, source, weights, out):  # pragma: no cover - compiled
     """``out[e, j] = sum_i vp[i, e] sum_{p: source_p = i} weights[p, j]``: the Gram matrices' upper triangles.
 
@@ -290,3 +273,72 @@ def gram_entries(vp_indptr, vp_indices, vp_data, n_vertices, source, weights, ou
             w = vp_data[e]
             for j in range(k):
                 out[q, j] += w * per_vertex[i, j]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def position_terms(
+    rotations, dir_a, dir_b, dir_rest, wl, skin_indptr, skin_indices, skin_data, source, c, resid, normals, reg, mu_point, mu_plane, r_out, w_out
+):  # pragma: no cover - compiled
+    """The position step's right-hand side into ``r_out`` (m, 3) and its pairs' Gram weights into ``w_out``.
+
+    ``r = reg D (wl R_a e) + P^T (mu_point c resid) [+ P^T ((mu_plane c (n . resid)) n)]``
+    with ``P = skin[source]``; ``w_out`` (p, 6) holds ``mu_plane c n_i n_j (+ mu_point c
+    for i = j)`` for ``(i, j)`` = (0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2) when
+    ``mu_plane > 0``, else (p, 1) ``mu_point c``. Bit for bit the numpy and SciPy formula
+    it replaced (``GraphDeformation.update_positions`` before session 49) with numpy 2.4
+    on x86-64: ``R_a e`` summed in order (the rotations' transposed layout, see
+    :func:`rotation_step`); the link sums over the links in order, ``+x`` into the
+    link's end and ``-x`` into its start (``csr_matvecs`` with the incidence matrix);
+    the skin sums over the pairs in order, each pair's skinning entries in stored
+    order (``csc_matvecs`` of ``skin[source].T @ X``); ``n . resid`` summed as
+    ``(n_0 r_0 + n_2 r_2) + n_1 r_1`` (numpy's einsum on contiguous rows).
+    """
+    m = r_out.shape[0]
+    rhs = np.zeros((m, 3))
+    x = np.empty(3)
+    for k in range(dir_a.shape[0]):
+        a_node = dir_a[k]
+        b_node = dir_b[k]
+        for a in range(3):
+            d = (rotations[a_node, a, 0] * dir_rest[k, 0] + rotations[a_node, a, 1] * dir_rest[k, 1]) + rotations[a_node, a, 2] * dir_rest[k, 2]
+            x[a] = wl[k] * d
+        for a in range(3):
+            rhs[b_node, a] += x[a]
+        for a in range(3):
+            rhs[a_node, a] += -1.0 * x[a]
+    y1 = np.zeros((m, 3))
+    plane = mu_plane > 0
+    y2 = np.zeros((m, 3))
+    x2 = np.empty(3)
+    for p in range(source.shape[0]):
+        i = source[p]
+        cp = c[p]
+        mc = mu_point * cp
+        for a in range(3):
+            x[a] = mc * resid[p, a]
+        if plane:
+            proj = (normals[p, 0] * resid[p, 0] + normals[p, 2] * resid[p, 2]) + normals[p, 1] * resid[p, 1]
+            s = (mu_plane * cp) * proj
+            for a in range(3):
+                x2[a] = s * normals[p, a]
+            pc = mu_plane * cp
+            col = 0
+            for a in range(3):
+                for b in range(a, 3):
+                    v = (pc * normals[p, a]) * normals[p, b]
+                    w_out[p, col] = v + mc if a == b else v + 0.0
+                    col += 1
+        else:
+            w_out[p, 0] = mc
+        for e in range(skin_indptr[i], skin_indptr[i + 1]):
+            q = skin_indices[e]
+            w = skin_data[e]
+            for a in range(3):
+                y1[q, a] += w * x[a]
+            if plane:
+                for a in range(3):
+                    y2[q, a] += w * x2[a]
+    for q in range(m):
+        for a in range(3):
+            t = reg * rhs[q, a] + y1[q, a]
+            r_out[q, a] = t + y2[q, a] if plane else t

@@ -32,7 +32,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from topomatch._kernels import gram_entries, rotation_step, skin_transpose_product, skinned_vertices
+from topomatch._kernels import gram_entries, position_terms, rotation_step, skinned_vertices
 from topomatch._lapack import cholesky_solve
 from topomatch.deform.graph import DeformationGraph
 from topomatch.deform.kdtree import JointTree, PointTree
@@ -45,6 +45,7 @@ __all__ = [
     "GraphDeformation",
     "RegistrationResult",
     "RegistrationSchedule",
+    "SearchMemory",
     "closest_pairs",
     "feature_pairs",
     "fit_residual",
@@ -456,21 +457,10 @@ class GraphDeformation:
         self._dir_a = np.r_[links[:, 0], links[:, 1]]
         self._dir_b = np.r_[links[:, 1], links[:, 0]]
         self._dir_rest = self.graph.rest[self._dir_b] - self.graph.rest[self._dir_a]
-        nd = len(self._dir_a)
-        self._Ia = sparse.csr_matrix((np.ones(nd), (self._dir_a, np.arange(nd))), shape=(m, nd))
-        Ib = sparse.csr_matrix((np.ones(nd), (self._dir_b, np.arange(nd))), shape=(m, nd))
-        self._D = (Ib - self._Ia).tocsr()
         self._pattern = _gram_pattern(self.graph, self._skin)
         self._lg: FloatArray | None = None
         self._lg_scale: FloatArray | None = None
         self._last = _LastFactor()
-
-    def _skin_transpose(self, source: IndexArray, X: FloatArray) -> FloatArray:
-        """``skin[source].T @ X``, shape (m, r), compiled (no row gather, no GIL)."""
-        out = np.zeros((self.graph.n_nodes, X.shape[1]))
-        S = self._skin
-        skin_transpose_product(S.indptr, S.indices, S.data, source, np.ascontiguousarray(X, dtype=np.float64), out)
-        return out
 
     # ---- evaluation ------------------------------------------------------------------------
     def _affine_part(self, subset: IndexArray | None = None) -> FloatArray:
@@ -558,30 +548,32 @@ class GraphDeformation:
         if len(pairs.source) == 0 or not float(pairs.weights.sum()) > 0:
             return  # no data (e.g. every closest pair had incompatible normals): keep the state
         wl = self._link_weights()
-        # regulariser: sum over directed links of w ||g_b - g_a - d_ab||^2
-        d = np.einsum("kab,kb->ka", self.rotations[self._dir_a], self._dir_rest)
         Lg = self._regulariser(wl)
-        rhs = self._D @ (wl[:, None] * d)  # (m, 3)
-        # data
         source = np.ascontiguousarray(pairs.source, dtype=np.int64)
         resid = pairs.points - self._affine_part(source)  # y - a_i, (p, 3)
         c = pairs.weights
         data_scale = float(c.sum()) / max(float(wl.sum()), 1e-300)
         reg = alpha * data_scale
-        r = reg * rhs + self._skin_transpose(source, mu_point * c[:, None] * resid)
-        if mu_plane > 0:
-            nrm = pairs.normals
-            proj = np.einsum("pc,pc->p", nrm, resid)
-            r = r + self._skin_transpose(source, (mu_plane * c * proj)[:, None] * nrm)
+        # the right-hand side (regulariser: sum over directed links of w ||g_b - g_a - R_a e_ab||^2;
+        # data: point-to-point, and point-to-plane when mu_plane > 0) and the pairs' Gram
+        # weights, compiled (topomatch._kernels.position_terms)
+        plane = mu_plane > 0
+        r = np.empty((self.graph.n_nodes, 3))
+        w = np.empty((len(source), 6 if plane else 1))
+        S = self._skin
+        position_terms(
+            self.rotations, self._dir_a, self._dir_b, self._dir_rest, wl, S.indptr, S.indices, S.data, source,
+            np.ascontiguousarray(c, dtype=np.float64), resid, np.ascontiguousarray(pairs.normals, dtype=np.float64),
+            float(reg), float(mu_point), float(mu_plane), r, w,
+        )
+        G = self._pattern.grams(source, w)
+        if plane:
             ij = [(i, j) for i in range(3) for j in range(i, 3)]
-            w = np.stack([mu_plane * c * nrm[:, i] * nrm[:, j] + (mu_point * c if i == j else 0.0) for i, j in ij], axis=1)
-            G = self._pattern.grams(pairs.source, w)
             blocks = {(i, j): G[:, k] + reg * Lg if i == j else G[:, k] for k, (i, j) in enumerate(ij)}
             x = self._pattern.solve(blocks, np.ravel(r.T), np.ravel(self.positions.T), self._last)
             self.positions = x.reshape(3, -1).T.copy()
         else:
-            G = self._pattern.grams(pairs.source, (mu_point * c)[:, None])
-            self.positions = self._pattern.solve({(0, 0): G[:, 0] + reg * Lg}, np.asarray(r), self.positions, self._last)
+            self.positions = self._pattern.solve({(0, 0): G[:, 0] + reg * Lg}, r, self.positions, self._last)
 
     def update_link_scale(self, threshold: float) -> None:
         """Down-weight links stretched more than ``threshold`` times the median stretch."""
@@ -633,6 +625,7 @@ def nearest_compatible(
     *,
     k: int = 8,
     min_cos: float = 0.0,
+    hint: IndexArray | None = None,
 ) -> tuple[IndexArray, FloatArray]:
     """Nearest reference point whose normal agrees with each query's normal.
 
@@ -649,6 +642,9 @@ def nearest_compatible(
     ref_normals : ndarray, shape (n, 3)
     k : int
     min_cos : float
+    hint : ndarray, shape (q,), optional
+        A reference index per query to start the search from (a
+        :class:`~topomatch.deform.kdtree.PointTree` uses it; the answers are the same).
 
     Returns
     -------
@@ -656,7 +652,7 @@ def nearest_compatible(
     distance : ndarray, shape (q,)
     """
     if isinstance(tree, PointTree):
-        return tree.nearest_compatible(points, normals, ref_normals, k=k, min_cos=min_cos)
+        return tree.nearest_compatible(points, normals, ref_normals, k=k, min_cos=min_cos, hint=hint)
     d, idx = tree.query(points, k=1)
     if k == 1:
         return idx, d
@@ -670,6 +666,25 @@ def nearest_compatible(
         idx[bad] = ik[r, first]
         d[bad] = dk[r, first]
     return idx, d
+
+
+@dataclass
+class SearchMemory:
+    """The last answers of a registration's two closest-point searches (the queries stay the same).
+
+    :func:`closest_pairs` passes them to the next iteration's searches as hints
+    (:meth:`~topomatch.deform.kdtree.PointTree.nearest_compatible`): the same answers,
+    found with less of the tree visited, since the source moves little between
+    iterations.
+    """
+
+    forward: IndexArray | None = None
+    backward: IndexArray | None = None
+
+    def hint(self, direction: str, n_queries: int) -> IndexArray | None:
+        """The last answers of one direction (``"forward"`` or ``"backward"``), if there were as many queries."""
+        last = self.forward if direction == "forward" else self.backward
+        return last if last is not None and len(last) == n_queries else None
 
 
 def closest_pairs(
@@ -686,6 +701,7 @@ def closest_pairs(
     backward: bool = True,
     pool: Executor | None = None,
     source_tree: PointTree | None = None,
+    memory: SearchMemory | None = None,
 ) -> DataPairs:
     """ICP pairs in both directions with normal compatibility and robust weights.
 
@@ -695,19 +711,27 @@ def closest_pairs(
     ``1 / (1 + (d / sigma)^2)``; incompatible normals get weight zero. With ``pool``
     the backward search runs on it beside the forward one (same pairs). ``source_tree``:
     a tree on ``deformed`` (e.g. one refitted from the previous iteration,
-    :meth:`PointTree.refit`) instead of building one (same pairs).
+    :meth:`PointTree.refit`) instead of building one (same pairs). ``memory``: the
+    previous iteration's answers for the same queries, used as search hints and
+    replaced by this iteration's (same pairs, faster searches).
     """
 
     def backward_pairs() -> DataPairs:
         tgt = np.arange(len(target_vertices)) if target_subset is None else np.asarray(target_subset)
         stree = _search_tree(deformed) if source_tree is None else source_tree
-        i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
+        hint = None if memory is None else memory.hint("backward", len(tgt))
+        i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos, hint=hint)
+        if memory is not None:
+            memory.backward = i
         w2 = _robust_weights(target_normals[tgt], deformed_normals[i], d2, sigma, min_cos)
         return DataPairs(i, target_vertices[tgt], target_normals[tgt], w2)
 
     later = pool.submit(backward_pairs) if backward and pool is not None else None
     src = np.arange(len(deformed)) if source_subset is None else np.asarray(source_subset)
-    j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos)
+    hint = None if memory is None else memory.hint("forward", len(src))
+    j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos, hint=hint)
+    if memory is not None:
+        memory.forward = j
     parts = [DataPairs(src, target_vertices[j], target_normals[j], _robust_weights(deformed_normals[src], target_normals[j], d, sigma, min_cos))]
     if later is not None:
         parts.append(later.result())
@@ -1001,6 +1025,7 @@ def register(
     feats = _checked_features(schedule, features, len(V), len(W))
     joint: tuple[float, FloatArray, JointTree] | None = None  # (weight, target's joint points, their tree)
     jtree: JointTree | None = None  # on the deformed source's joint points
+    memory = SearchMemory()
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(schedule.icp_iterations):
             t = it / max(schedule.icp_iterations - 1, 1)
@@ -1026,7 +1051,7 @@ def register(
                 stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
                 pairs = closest_pairs(
                     Vd, Nd, W, Nt, tree, sigma=sigma, min_cos=schedule.min_cos,
-                    source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
+                    source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree, memory=memory,
                 )
             D.update_rotations(pairs)
             D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)
