@@ -149,3 +149,24 @@ def test_hints_give_the_same_answers_ties_included():
         tree.nearest_compatible(Q, NQ, RN, hint=np.zeros(3, dtype=np.int64))
     with pytest.raises(ValueError, match="hint"):
         tree.nearest_compatible(Q, NQ, RN, hint=np.full(len(Q), len(P)))
+
+
+def test_joint_tree_hints_give_the_same_answers_ties_included():
+    rng = np.random.default_rng(4)
+    P = rng.standard_normal((1500, 8))
+    P = np.r_[P, P[:200]]  # coincident points: exact ties
+    tree = JointTree(P)
+    Q = P[rng.integers(0, len(P), 600)] + 0.1 * rng.standard_normal((600, 8))
+    Q[:100] = P[:100]
+    want_d, want_i = tree.query(Q)
+    for hint in (want_i, rng.integers(-1, len(P), len(Q)), (want_i + 200) % len(P)):
+        d, i = tree.query(Q, hint=hint)
+        np.testing.assert_array_equal(i, want_i)
+        np.testing.assert_array_equal(d, want_d)
+    # after a refit too (the hints index the points, not the tree's order)
+    moved = P + 0.05 * rng.standard_normal(P.shape)
+    want_d, want_i = tree.refit(moved).query(Q)
+    np.testing.assert_array_equal(tree.query(Q, hint=np.roll(want_i, 1))[1], want_i)
+    np.testing.assert_allclose(want_d, cKDTree(moved).query(Q)[0], rtol=1e-12)
+    with pytest.raises(ValueError, match="hint"):
+        tree.query(Q, hint=np.full(len(Q), -2))

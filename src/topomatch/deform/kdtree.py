@@ -159,11 +159,14 @@ def _box_d2(q, bmin, bmax, node):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stack_d):  # pragma: no cover
-    """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves; any dimension)."""
+def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stack_d, bound):  # pragma: no cover
+    """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves; any dimension).
+
+    Only points with squared distance below ``bound`` are considered (``np.inf``: all).
+    """
     dims = q.shape[0]
     for j in range(k):
-        best_d[j] = np.inf
+        best_d[j] = bound
         best_i[j] = -1
     stack_n[0] = 0
     stack_d[0] = 0.0
@@ -323,16 +326,42 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest(Ps, perm, lo, hi, left, bmin, bmax, Q, out_i, out_d):  # pragma: no cover
-    """The nearest point of each query (any dimension)."""
+def _nearest(Ps, perm, lo, hi, left, bmin, bmax, Q, P, hint, out_i, out_d):  # pragma: no cover
+    """The nearest point of each query (any dimension).
+
+    ``hint`` (empty, or one reference index per query, ``-1`` for none; ``P`` the
+    reference points unsorted) bounds each search by the hinted point's distance, as in
+    :func:`_nearest_compatible`: the same answers, ties included.
+    """
     stack_n = np.empty(2 * len(lo) + 2, np.int64)
     stack_d = np.empty(2 * len(lo) + 2)
     bd = np.empty(1)
     bi = np.empty(1, np.int64)
+    dims = Q.shape[1]
+    use_hint = hint.shape[0] > 0
     for q in range(Q.shape[0]):
-        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], 1, bd, bi, stack_n, stack_d)
+        bound = np.inf
+        if use_hint and hint[q] >= 0:
+            h = hint[q]
+            d2 = 0.0
+            for d in range(dims):  # as _knn sums it
+                t = P[h, d] - Q[q, d]
+                d2 += t * t
+            bound = np.nextafter(d2, np.inf)
+        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], 1, bd, bi, stack_n, stack_d, bound)
         out_i[q] = bi[0]
         out_d[q] = np.sqrt(bd[0])
+
+
+def _checked_hint(hint: IndexArray | None, n_queries: int, n: int, owner: str) -> np.ndarray:
+    """A search's hints as int64 (empty for none), or a ValueError naming what is wrong."""
+    if hint is None:
+        return _NO_HINT
+    H = np.ascontiguousarray(hint, dtype=np.int64)
+    if H.shape != (n_queries,) or (len(H) and (H.min() < -1 or H.max() >= n)):
+        lo_hi = f"{int(H.min())}..{int(H.max())}" if H.ndim == 1 and len(H) else "none"
+        raise ValueError(f"{owner}: hint must hold one index in [-1, {n}) per query ({n_queries}); got shape {H.shape}, values {lo_hi}")
+    return H
 
 
 def _points(x: FloatArray, name: str) -> np.ndarray:
@@ -423,12 +452,7 @@ class PointTree:
         if len(NQ) != len(Q) or len(RN) != self.n:
             raise ValueError(f"PointTree: {len(Q)} points need {len(Q)} normals (got {len(NQ)}), and {self.n} reference normals (got {len(RN)})")
         k = int(min(max(int(k), 1), self.n))
-        if hint is None:
-            H = _NO_HINT
-        else:
-            H = np.ascontiguousarray(hint, dtype=np.int64)
-            if H.shape != (len(Q),) or (len(H) and (H.min() < -1 or H.max() >= self.n)):
-                raise ValueError(f"PointTree: hint must hold one index in [-1, {self.n}) per query ({len(Q)}), got shape {H.shape}")
+        H = _checked_hint(hint, len(Q), self.n, "PointTree")
         out_i = np.empty(len(Q), dtype=np.int64)
         out_d = np.empty(len(Q), dtype=np.float64)
         _nearest_compatible(
@@ -500,12 +524,16 @@ class JointTree:
         self._sorted = np.ascontiguousarray(P[self._perm])
         return self
 
-    def query(self, points: FloatArray) -> tuple[FloatArray, IndexArray]:
+    def query(self, points: FloatArray, *, hint: IndexArray | None = None) -> tuple[FloatArray, IndexArray]:
         """Nearest reference point of each query (``cKDTree.query(points, k=1)``'s order).
 
         Parameters
         ----------
         points : ndarray, shape (q, d)
+        hint : ndarray, shape (q,), optional
+            A reference index per query to start from (``-1``: none), e.g. the query's
+            answer for the previous positions: its distance bounds the search. The
+            answers are the same with or without it.
 
         Returns
         -------
@@ -513,7 +541,8 @@ class JointTree:
         index : ndarray, shape (q,)
         """
         Q = self._checked(points, self.dim)
+        H = _checked_hint(hint, len(Q), self.n, "JointTree")
         out_i = np.empty(len(Q), dtype=np.int64)
         out_d = np.empty(len(Q), dtype=np.float64)
-        _nearest(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, out_i, out_d)
+        _nearest(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, self.data, H, out_i, out_d)
         return out_d, out_i

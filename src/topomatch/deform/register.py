@@ -753,6 +753,7 @@ def feature_pairs(
     min_cos: float = 0.3,
     pool: Executor | None = None,
     source_tree: JointTree | None = None,
+    memory: SearchMemory | None = None,
 ) -> DataPairs:
     """ICP pairs in both directions, nearest in positions *and* features.
 
@@ -780,15 +781,25 @@ def feature_pairs(
     source_tree : JointTree, optional
         A tree on ``[deformed, source_features]`` (refitted to them by the caller, whose
         points are then taken from it); ``None`` builds one.
+    memory : SearchMemory, optional
+        The previous iteration's answers: hints for a :class:`JointTree`'s searches
+        (the same answers), replaced by this iteration's.
     """
     joint = np.c_[deformed, source_features] if source_tree is None else source_tree.data
 
+    def search(tree: JointTree | cKDTree, points: FloatArray, direction: str) -> IndexArray:
+        if memory is None or not isinstance(tree, JointTree):
+            return np.asarray(tree.query(points)[1])
+        found = tree.query(points, hint=memory.hint(direction, len(points)))[1]
+        setattr(memory, direction, found)
+        return found
+
     def backward() -> tuple[IndexArray, FloatArray]:
-        i = (JointTree(joint) if source_tree is None else source_tree).query(target_points)[1]
+        i = search(JointTree(joint) if source_tree is None else source_tree, target_points, "backward")
         return i, np.linalg.norm(target_vertices - deformed[i], axis=1)
 
     later = pool.submit(backward) if pool is not None else None
-    j = target_tree.query(joint)[1]
+    j = search(target_tree, joint, "forward")
     d = np.linalg.norm(deformed - target_vertices[j], axis=1)
     i, d2 = later.result() if later is not None else backward()
     return DataPairs.concat(
@@ -1045,6 +1056,7 @@ def register(
                 jtree = JointTree(sj) if jtree is None or rebuild else jtree.refit(sj)
                 pairs = feature_pairs(
                     Vd, Nd, W, Nt, sf, joint[1], joint[2], sigma=sigma, min_cos=schedule.min_cos, pool=pool, source_tree=jtree,
+                    memory=memory,
                 )
             else:
                 # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
