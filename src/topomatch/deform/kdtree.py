@@ -39,8 +39,6 @@ __all__ = ["JointTree", "PointTree"]
 
 _LEAF_SIZE = 12
 
-_NO_HINT = np.zeros(0, dtype=np.int64)
-
 
 @numba.njit(cache=True, nogil=True)
 def _select(P, perm, keys, left, right, k, dim):  # pragma: no cover - compiled
@@ -159,14 +157,11 @@ def _box_d2(q, bmin, bmax, node):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stack_d, bound):  # pragma: no cover
-    """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves; any dimension).
-
-    Only points with squared distance below ``bound`` are considered (``np.inf``: all).
-    """
+def _knn(Ps, perm, lo, hi, left, bmin, bmax, q, k, best_d, best_i, stack_n, stack_d):  # pragma: no cover
+    """The ``k`` nearest points to ``q`` (squared distances ascending, ties by index order of the leaves; any dimension)."""
     dims = q.shape[0]
     for j in range(k):
-        best_d[j] = bound
+        best_d[j] = np.inf
         best_i[j] = -1
     stack_n[0] = 0
     stack_d[0] = 0.0
@@ -218,7 +213,7 @@ def _box_d2_3(qx, qy, qz, bmin, bmax, node):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_cos, P, hint, out_i, out_d):  # pragma: no cover
+def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_cos, out_i, out_d):  # pragma: no cover
     """For each query, the nearest compatible point among its ``k`` nearest (else the nearest), in one search (3-D).
 
     The two-search formulation (the nearest; when its normal disagrees, the ``k``
@@ -228,18 +223,7 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
     incompatible ones is not among the ``k`` nearest). Same answers (up to exact
     distance ties), about two thirds of the time: about 30 % of a registration's
     queries found their nearest point's normal disagreeing and searched twice.
-
-    ``hint`` (empty, or one reference index per query, ``-1`` for none; ``P`` the
-    reference points unsorted) seeds the search: a hint whose normal agrees bounds the
-    answer's distance, so the pass starts with that bound and skips every box beyond
-    it. The answers are the same, ties included: the answer and every point that can
-    decide it lie within the bound (the compatible answer is no farther than the hint,
-    the nearer incompatible points and the nearest point nearer still), points at
-    exactly the bound are still visited, and pruning removes subtrees without
-    reordering the visits of the rest. A query's answer in the previous closest-point
-    iteration is a good hint (session 49, #157: the searches took about 0.85 of the time).
     """
-    use_hint = hint.shape[0] > 0
     stack_n = np.empty(2 * len(lo) + 2, np.int64)
     stack_d = np.empty(2 * len(lo) + 2)
     inc_d = np.empty(max(k, 1))
@@ -257,15 +241,6 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
         bc_d = np.inf  # the nearest compatible point so far
         bc_i = -1
         bound = np.inf
-        if use_hint:
-            h = hint[q]
-            if h >= 0 and (not use_normals or nx * RN[h, 0] + ny * RN[h, 1] + nz * RN[h, 2] >= min_cos):
-                a = P[h, 0] - qx
-                b = P[h, 1] - qy
-                c = P[h, 2] - qz
-                # the point's own squared distance as the search computes it; just above
-                # it, so that it and any point at the same distance are still visited
-                bound = np.nextafter(a * a + b * b + c * c, np.inf)
         stack_n[0] = 0
         stack_d[0] = 0.0
         sp = 1
@@ -326,42 +301,16 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest(Ps, perm, lo, hi, left, bmin, bmax, Q, P, hint, out_i, out_d):  # pragma: no cover
-    """The nearest point of each query (any dimension).
-
-    ``hint`` (empty, or one reference index per query, ``-1`` for none; ``P`` the
-    reference points unsorted) bounds each search by the hinted point's distance, as in
-    :func:`_nearest_compatible`: the same answers, ties included.
-    """
+def _nearest(Ps, perm, lo, hi, left, bmin, bmax, Q, out_i, out_d):  # pragma: no cover
+    """The nearest point of each query (any dimension)."""
     stack_n = np.empty(2 * len(lo) + 2, np.int64)
     stack_d = np.empty(2 * len(lo) + 2)
     bd = np.empty(1)
     bi = np.empty(1, np.int64)
-    dims = Q.shape[1]
-    use_hint = hint.shape[0] > 0
     for q in range(Q.shape[0]):
-        bound = np.inf
-        if use_hint and hint[q] >= 0:
-            h = hint[q]
-            d2 = 0.0
-            for d in range(dims):  # as _knn sums it
-                t = P[h, d] - Q[q, d]
-                d2 += t * t
-            bound = np.nextafter(d2, np.inf)
-        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], 1, bd, bi, stack_n, stack_d, bound)
+        _knn(Ps, perm, lo, hi, left, bmin, bmax, Q[q], 1, bd, bi, stack_n, stack_d)
         out_i[q] = bi[0]
         out_d[q] = np.sqrt(bd[0])
-
-
-def _checked_hint(hint: IndexArray | None, n_queries: int, n: int, owner: str) -> np.ndarray:
-    """A search's hints as int64 (empty for none), or a ValueError naming what is wrong."""
-    if hint is None:
-        return _NO_HINT
-    H = np.ascontiguousarray(hint, dtype=np.int64)
-    if H.shape != (n_queries,) or (len(H) and (H.min() < -1 or H.max() >= n)):
-        lo_hi = f"{int(H.min())}..{int(H.max())}" if H.ndim == 1 and len(H) else "none"
-        raise ValueError(f"{owner}: hint must hold one index in [-1, {n}) per query ({n_queries}); got shape {H.shape}, values {lo_hi}")
-    return H
 
 
 def _points(x: FloatArray, name: str) -> np.ndarray:
@@ -414,14 +363,7 @@ class PointTree:
         return self
 
     def nearest_compatible(
-        self,
-        points: FloatArray,
-        normals: FloatArray,
-        ref_normals: FloatArray,
-        *,
-        k: int = 8,
-        min_cos: float = 0.0,
-        hint: IndexArray | None = None,
+        self, points: FloatArray, normals: FloatArray, ref_normals: FloatArray, *, k: int = 8, min_cos: float = 0.0
     ) -> tuple[IndexArray, FloatArray]:
         """For each query, the nearest reference point with ``normal . ref_normal >= min_cos``.
 
@@ -436,10 +378,6 @@ class PointTree:
             Normals of the reference points.
         k : int
         min_cos : float
-        hint : ndarray, shape (q,), optional
-            A reference index per query to start from (``-1``: none), e.g. the
-            query's answer for the previous positions: a hint whose normal agrees
-            bounds the search. The answers are the same with or without it.
 
         Returns
         -------
@@ -452,13 +390,9 @@ class PointTree:
         if len(NQ) != len(Q) or len(RN) != self.n:
             raise ValueError(f"PointTree: {len(Q)} points need {len(Q)} normals (got {len(NQ)}), and {self.n} reference normals (got {len(RN)})")
         k = int(min(max(int(k), 1), self.n))
-        H = _checked_hint(hint, len(Q), self.n, "PointTree")
         out_i = np.empty(len(Q), dtype=np.int64)
         out_d = np.empty(len(Q), dtype=np.float64)
-        _nearest_compatible(
-            self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, NQ, RN, k, float(min_cos),
-            self.data, H, out_i, out_d,
-        )
+        _nearest_compatible(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, NQ, RN, k, float(min_cos), out_i, out_d)
         return out_i, out_d
 
     def query(self, points: FloatArray) -> tuple[FloatArray, IndexArray]:
@@ -524,16 +458,12 @@ class JointTree:
         self._sorted = np.ascontiguousarray(P[self._perm])
         return self
 
-    def query(self, points: FloatArray, *, hint: IndexArray | None = None) -> tuple[FloatArray, IndexArray]:
+    def query(self, points: FloatArray) -> tuple[FloatArray, IndexArray]:
         """Nearest reference point of each query (``cKDTree.query(points, k=1)``'s order).
 
         Parameters
         ----------
         points : ndarray, shape (q, d)
-        hint : ndarray, shape (q,), optional
-            A reference index per query to start from (``-1``: none), e.g. the query's
-            answer for the previous positions: its distance bounds the search. The
-            answers are the same with or without it.
 
         Returns
         -------
@@ -541,8 +471,7 @@ class JointTree:
         index : ndarray, shape (q,)
         """
         Q = self._checked(points, self.dim)
-        H = _checked_hint(hint, len(Q), self.n, "JointTree")
         out_i = np.empty(len(Q), dtype=np.int64)
         out_d = np.empty(len(Q), dtype=np.float64)
-        _nearest(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, self.data, H, out_i, out_d)
+        _nearest(self._sorted, self._perm, self._lo, self._hi, self._left, self._bmin, self._bmax, Q, out_i, out_d)
         return out_d, out_i

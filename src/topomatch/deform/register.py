@@ -45,7 +45,6 @@ __all__ = [
     "GraphDeformation",
     "RegistrationResult",
     "RegistrationSchedule",
-    "SearchMemory",
     "closest_pairs",
     "feature_pairs",
     "fit_residual",
@@ -625,7 +624,6 @@ def nearest_compatible(
     *,
     k: int = 8,
     min_cos: float = 0.0,
-    hint: IndexArray | None = None,
 ) -> tuple[IndexArray, FloatArray]:
     """Nearest reference point whose normal agrees with each query's normal.
 
@@ -642,9 +640,6 @@ def nearest_compatible(
     ref_normals : ndarray, shape (n, 3)
     k : int
     min_cos : float
-    hint : ndarray, shape (q,), optional
-        A reference index per query to start the search from (a
-        :class:`~topomatch.deform.kdtree.PointTree` uses it; the answers are the same).
 
     Returns
     -------
@@ -652,7 +647,7 @@ def nearest_compatible(
     distance : ndarray, shape (q,)
     """
     if isinstance(tree, PointTree):
-        return tree.nearest_compatible(points, normals, ref_normals, k=k, min_cos=min_cos, hint=hint)
+        return tree.nearest_compatible(points, normals, ref_normals, k=k, min_cos=min_cos)
     d, idx = tree.query(points, k=1)
     if k == 1:
         return idx, d
@@ -666,25 +661,6 @@ def nearest_compatible(
         idx[bad] = ik[r, first]
         d[bad] = dk[r, first]
     return idx, d
-
-
-@dataclass
-class SearchMemory:
-    """The last answers of a registration's two closest-point searches (the queries stay the same).
-
-    :func:`closest_pairs` passes them to the next iteration's searches as hints
-    (:meth:`~topomatch.deform.kdtree.PointTree.nearest_compatible`): the same answers,
-    found with less of the tree visited, since the source moves little between
-    iterations.
-    """
-
-    forward: IndexArray | None = None
-    backward: IndexArray | None = None
-
-    def hint(self, direction: str, n_queries: int) -> IndexArray | None:
-        """The last answers of one direction (``"forward"`` or ``"backward"``), if there were as many queries."""
-        last = self.forward if direction == "forward" else self.backward
-        return last if last is not None and len(last) == n_queries else None
 
 
 def closest_pairs(
@@ -701,7 +677,6 @@ def closest_pairs(
     backward: bool = True,
     pool: Executor | None = None,
     source_tree: PointTree | None = None,
-    memory: SearchMemory | None = None,
 ) -> DataPairs:
     """ICP pairs in both directions with normal compatibility and robust weights.
 
@@ -711,27 +686,19 @@ def closest_pairs(
     ``1 / (1 + (d / sigma)^2)``; incompatible normals get weight zero. With ``pool``
     the backward search runs on it beside the forward one (same pairs). ``source_tree``:
     a tree on ``deformed`` (e.g. one refitted from the previous iteration,
-    :meth:`PointTree.refit`) instead of building one (same pairs). ``memory``: the
-    previous iteration's answers for the same queries, used as search hints and
-    replaced by this iteration's (same pairs, faster searches).
+    :meth:`PointTree.refit`) instead of building one (same pairs).
     """
 
     def backward_pairs() -> DataPairs:
         tgt = np.arange(len(target_vertices)) if target_subset is None else np.asarray(target_subset)
         stree = _search_tree(deformed) if source_tree is None else source_tree
-        hint = None if memory is None else memory.hint("backward", len(tgt))
-        i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos, hint=hint)
-        if memory is not None:
-            memory.backward = i
+        i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
         w2 = _robust_weights(target_normals[tgt], deformed_normals[i], d2, sigma, min_cos)
         return DataPairs(i, target_vertices[tgt], target_normals[tgt], w2)
 
     later = pool.submit(backward_pairs) if backward and pool is not None else None
     src = np.arange(len(deformed)) if source_subset is None else np.asarray(source_subset)
-    hint = None if memory is None else memory.hint("forward", len(src))
-    j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos, hint=hint)
-    if memory is not None:
-        memory.forward = j
+    j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos)
     parts = [DataPairs(src, target_vertices[j], target_normals[j], _robust_weights(deformed_normals[src], target_normals[j], d, sigma, min_cos))]
     if later is not None:
         parts.append(later.result())
@@ -753,7 +720,6 @@ def feature_pairs(
     min_cos: float = 0.3,
     pool: Executor | None = None,
     source_tree: JointTree | None = None,
-    memory: SearchMemory | None = None,
 ) -> DataPairs:
     """ICP pairs in both directions, nearest in positions *and* features.
 
@@ -781,25 +747,15 @@ def feature_pairs(
     source_tree : JointTree, optional
         A tree on ``[deformed, source_features]`` (refitted to them by the caller, whose
         points are then taken from it); ``None`` builds one.
-    memory : SearchMemory, optional
-        The previous iteration's answers: hints for a :class:`JointTree`'s searches
-        (the same answers), replaced by this iteration's.
     """
     joint = np.c_[deformed, source_features] if source_tree is None else source_tree.data
 
-    def search(tree: JointTree | cKDTree, points: FloatArray, direction: str) -> IndexArray:
-        if memory is None or not isinstance(tree, JointTree):
-            return np.asarray(tree.query(points)[1])
-        found = tree.query(points, hint=memory.hint(direction, len(points)))[1]
-        setattr(memory, direction, found)
-        return found
-
     def backward() -> tuple[IndexArray, FloatArray]:
-        i = search(JointTree(joint) if source_tree is None else source_tree, target_points, "backward")
+        i = (JointTree(joint) if source_tree is None else source_tree).query(target_points)[1]
         return i, np.linalg.norm(target_vertices - deformed[i], axis=1)
 
     later = pool.submit(backward) if pool is not None else None
-    j = search(target_tree, joint, "forward")
+    j = target_tree.query(joint)[1]
     d = np.linalg.norm(deformed - target_vertices[j], axis=1)
     i, d2 = later.result() if later is not None else backward()
     return DataPairs.concat(
@@ -1036,7 +992,6 @@ def register(
     feats = _checked_features(schedule, features, len(V), len(W))
     joint: tuple[float, FloatArray, JointTree] | None = None  # (weight, target's joint points, their tree)
     jtree: JointTree | None = None  # on the deformed source's joint points
-    memory = SearchMemory()
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(schedule.icp_iterations):
             t = it / max(schedule.icp_iterations - 1, 1)
@@ -1056,14 +1011,13 @@ def register(
                 jtree = JointTree(sj) if jtree is None or rebuild else jtree.refit(sj)
                 pairs = feature_pairs(
                     Vd, Nd, W, Nt, sf, joint[1], joint[2], sigma=sigma, min_cos=schedule.min_cos, pool=pool, source_tree=jtree,
-                    memory=memory,
                 )
             else:
                 # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
                 stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
                 pairs = closest_pairs(
                     Vd, Nd, W, Nt, tree, sigma=sigma, min_cos=schedule.min_cos,
-                    source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree, memory=memory,
+                    source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
                 )
             D.update_rotations(pairs)
             D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)

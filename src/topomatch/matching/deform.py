@@ -343,10 +343,9 @@ def _rigid_icp(
 ) -> tuple[FloatArray, FloatArray]:
     """Refine ``x -> R x + t`` by point-to-point ICP with normal-compatible, robustly weighted pairs."""
     tree = PointTree(Y)
-    j = None  # the previous iteration's answers: hints for the next search (same answers)
     for _ in range(iterations):
         Xt = X @ R.T + t
-        j, d = nearest_compatible(Xt, NX @ R.T, tree, NY, min_cos=0.3, hint=j)
+        j, d = nearest_compatible(Xt, NX @ R.T, tree, NY, min_cos=0.3)
         w = 1.0 / (1.0 + (d / (np.median(d) + 1e-12)) ** 2)
         mx = w @ Xt / w.sum()
         my = w @ Y[j] / w.sum()
