@@ -124,7 +124,6 @@ def farthest_points(cols, first, out):  # pragma: no cover - compiled
         cur = best
 
 
-
 @numba.njit(cache=True, nogil=True, fastmath=False)
 def rotation_step(
     positions, rest, dir_a, dir_b, dir_rest, wl, vertices, skin_indptr, skin_indices, skin_data, source, c, points, previous, out
@@ -132,7 +131,8 @@ def rotation_step(
     """The embedded deformation's Procrustes step into ``out`` (m, 3, 3): each node's best rotation.
 
     Bit for bit the numpy and SciPy formula it replaced (``GraphDeformation.update_rotations``
-    before session 49), without holding the GIL:
+    before session 49, kept as :func:`topomatch.deform._reference.rotations`) with numpy
+    2.4 on x86-64, without holding the GIL:
 
     - the link sums ``S_a = sum_k (wl_k e_k) cur_k^T`` over the directed links ``k = a -> b``
       in link order (``e_k`` the rest offset, ``cur_k = g_b - g_a``; the order in which
@@ -210,7 +210,8 @@ def skinned_vertices(rotations, rest, indptr, indices, data, vertices, rows, eve
     weights from the CSR arrays ``indptr, indices, data`` (sorted indices), the
     translation part ``sum_q w_iq g_q`` added when ``add_positions``. Bit for bit the
     numpy and SciPy formula it replaced (``GraphDeformation._affine_part`` and
-    ``deformed`` before session 49) with numpy 2.4 on x86-64: the blends
+    ``deformed`` before session 49, :mod:`topomatch.deform._reference`) with numpy 2.4 on
+    x86-64: the blends
     ``sum_q w_iq [R_q, R_q g0_q]`` and ``sum_q w_iq g_q`` summed over the row's entries
     in order from zero (``csr_matvecs``); ``R_q g0_q`` summed in order and ``B_i v_i`` as
     ``(x_0 y_0 + x_2 y_2) + x_1 y_1``, the orders in which numpy's ``einsum`` adds them

@@ -505,9 +505,9 @@ class GraphDeformation:
     def update_rotations(self, pairs: DataPairs | None, data_weight: float = 1.0) -> None:
         """Procrustes step: best rotation per node for the current positions.
 
-        Compiled (:func:`topomatch._kernels.rotation_step`, without the GIL): the same
-        bits as the numpy and SciPy formula it replaced, which
-        ``tests/test_register_kernels.py`` keeps as the reference.
+        Compiled (:func:`topomatch._kernels.rotation_step`, without the GIL); the numpy
+        and SciPy formula it replaced is :func:`topomatch.deform._reference.rotations`
+        (the same bits on x86-64 with numpy 2.4).
         """
         wl = self._link_weights()
         if pairs is not None and len(pairs.source) and data_weight > 0:
