@@ -24,6 +24,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from _common import median_seconds
 from scipy.spatial import cKDTree
 
 from topomatch._blas import one_blas_thread
@@ -38,15 +39,6 @@ from topomatch.deform.register import (
 from topomatch.mesh import TriangleMesh
 from topomatch.mesh.geometry import vertex_normals
 from topomatch.mesh.sampling import farthest_point_sampling
-
-
-def _median_ms(fn, repeat: int) -> float:
-    out = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(out))
 
 
 def _states(source: TriangleMesh, target: TriangleMesh) -> list[tuple[str, GraphDeformation, DataPairs, float]]:
@@ -99,7 +91,7 @@ def _bench_state(name: str, D: GraphDeformation, pairs: DataPairs, mu_plane: flo
     ]
     for step, fn_ref, fn_lib in steps:
         diff = float(np.abs(np.asarray(fn_ref()) - np.asarray(fn_lib())).max())
-        t_ref, t_lib = _median_ms(fn_ref, repeat), _median_ms(fn_lib, repeat)
+        t_ref, t_lib = (1e3 * median_seconds(fn, repeat)[0] for fn in (fn_ref, fn_lib))
         print(f"{name:36s} {step:16s} {t_ref:12.3f} {t_lib:12.3f} {t_lib / t_ref:7.3f} {diff:10.1e}")
 
     def run(C: GraphDeformation, compiled: bool) -> None:

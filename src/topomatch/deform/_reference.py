@@ -116,11 +116,4 @@ def position_terms(
 def position_step(D: GraphDeformation, pairs: DataPairs, *, alpha: float, mu_point: float = 1.0, mu_plane: float = 0.0) -> FloatArray:
     """The position step's new node positions, shape (m, 3) (the same linear solve as the library's)."""
     reg, r, w = position_terms(D, pairs, alpha, mu_point, mu_plane)
-    G = grams(D, pairs.source, w)
-    Lg = D._regulariser(D._link_weights())
-    if mu_plane > 0:
-        ij = [(i, j) for i in range(3) for j in range(i, 3)]
-        blocks = {(i, j): G[:, k] + reg * Lg if i == j else G[:, k] for k, (i, j) in enumerate(ij)}
-        x = D._pattern.solve(blocks, np.ravel(r.T), np.ravel(D.positions.T), D._last)
-        return x.reshape(3, -1).T.copy()
-    return D._pattern.solve({(0, 0): G[:, 0] + reg * Lg}, r, D.positions, D._last)
+    return D._solved_positions(r, grams(D, pairs.source, w), reg, D._regulariser(D._link_weights()))

@@ -565,14 +565,22 @@ class GraphDeformation:
             np.ascontiguousarray(c, dtype=np.float64), resid, np.ascontiguousarray(pairs.normals, dtype=np.float64),
             float(reg), float(mu_point), float(mu_plane), r, w,
         )
-        G = self._pattern.grams(source, w)
-        if plane:
+        self.positions = self._solved_positions(r, self._pattern.grams(source, w), reg, Lg)
+
+    def _solved_positions(self, r: FloatArray, G: FloatArray, reg: float, Lg: FloatArray) -> FloatArray:
+        """The position step's solution, shape (m, 3), for its right-hand side ``r`` (m, 3) and Gram sums ``G``.
+
+        ``G`` (n_entries, 6) holds the blocks ``(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)``
+        of a point-to-plane step (the coordinates coupled), (n_entries, 1) the one block of a
+        point-to-point step (the three coordinates solved with one factorisation); the
+        diagonal blocks get ``reg`` times the link Laplacian ``Lg``.
+        """
+        if G.shape[1] == 6:
             ij = [(i, j) for i in range(3) for j in range(i, 3)]
             blocks = {(i, j): G[:, k] + reg * Lg if i == j else G[:, k] for k, (i, j) in enumerate(ij)}
             x = self._pattern.solve(blocks, np.ravel(r.T), np.ravel(self.positions.T), self._last)
-            self.positions = x.reshape(3, -1).T.copy()
-        else:
-            self.positions = self._pattern.solve({(0, 0): G[:, 0] + reg * Lg}, r, self.positions, self._last)
+            return x.reshape(3, -1).T.copy()
+        return self._pattern.solve({(0, 0): G[:, 0] + reg * Lg}, r, self.positions, self._last)
 
     def update_link_scale(self, threshold: float) -> None:
         """Down-weight links stretched more than ``threshold`` times the median stretch."""
