@@ -124,3 +124,14 @@ def test_position_step_equals_the_numpy_formula(deformation, mu_plane):
     D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=mu_plane)
     np.testing.assert_allclose(D.positions, before, atol=1e-6)
     _rest(D)
+
+
+def test_rotation_step_rejects_non_finite_sums(deformation):
+    # LAPACK is called directly (no longer through numba's np.linalg.svd, which checked this)
+    D = deformation
+    _rest(D)
+    D.positions = D.graph.rest.copy()
+    D.positions[3] = np.nan
+    with pytest.raises(np.linalg.LinAlgError, match="infs or NaNs"):
+        D.update_rotations(None)
+    _rest(D)

@@ -4,6 +4,15 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba import types
+
+from topomatch._lapack import register_lapack_symbol
+
+# LAPACK's dgesdd (SciPy's, the routine behind numba's ``np.linalg.svd``) by a symbol name,
+# so that the kernels calling it stay cached on disk (an address would be baked in)
+_VP = types.voidptr
+_dgesdd = types.ExternalFunction("topomatch_dgesdd", types.void(*(_VP,) * 14))
+register_lapack_symbol("topomatch_dgesdd", "dgesdd")
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)
@@ -141,7 +150,8 @@ def rotation_step(
       stored order (the order of ``csc_matvecs`` for ``skin[source].T @ X``): per node
       ``sum P c v y^T``, ``sum P c v``, ``sum P c y``, ``sum P c``, combined as
       ``((S_vy - sv g^T) - g0 sy^T) + (sc g0) g^T``;
-    - the rotation maximising ``tr(R S)`` from LAPACK's SVD of ``S + 1e-12 I``
+    - the rotation maximising ``tr(R S)`` from LAPACK's SVD (``dgesdd``, as ``np.linalg.svd``
+      calls it) of ``S + 1e-12 I``
       (``R = V U^T``, ``V``'s last column negated when ``det < 0``), the previous rotation
       kept where the trace of ``|S|`` is below 1e-300.
 
@@ -184,22 +194,48 @@ def rotation_step(
                     S[n, a, b] += (
                         (sums[n, 3 * a + b] - sums[n, 9 + a] * positions[n, b]) - rest[n, a] * sums[n, 12 + b]
                     ) + (sums[n, 15] * rest[n, a]) * positions[n, b]
-    M = np.empty((3, 3))
+    # LAPACK's dgesdd called as numba's ``np.linalg.svd`` calls it (jobz "A", Fortran order,
+    # the queried optimal workspace), with the buffers and the workspace made once here
+    # rather than for every node: the same bits
+    jobz = np.array([ord("A")], np.uint8)
+    three = np.array([3], np.int32)
+    info = np.zeros(1, np.int32)
+    lwork = np.array([-1], np.int32)
+    M = np.zeros(9)  # column-major: M[a + 3 b]
+    sv = np.empty(3)
+    U = np.empty(9)  # column-major, as Vt
+    Vt = np.empty(9)
+    iwork = np.empty(24, np.int32)
+    query = np.empty(1)
+    _dgesdd(jobz.ctypes, three.ctypes, three.ctypes, M.ctypes, three.ctypes, sv.ctypes, U.ctypes, three.ctypes, Vt.ctypes,
+            three.ctypes, query.ctypes, lwork.ctypes, iwork.ctypes, info.ctypes)
+    lwork[0] = np.int32(query[0])
+    work = np.empty(max(1, lwork[0]))
     for n in range(m):
         if abs(S[n, 0, 0]) + abs(S[n, 1, 1]) + abs(S[n, 2, 2]) < 1e-300:
             out[n] = previous[n]
             continue
         for a in range(3):
             for b in range(3):
-                M[a, b] = S[n, a, b] + (1e-12 if a == b else 0.0)
-        U, _, Vt = np.linalg.svd(M)
+                M[a + 3 * b] = S[n, a, b] + (1e-12 if a == b else 0.0)
+                if not np.isfinite(M[a + 3 * b]):  # numba's np.linalg.svd checked this
+                    raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
+        _dgesdd(jobz.ctypes, three.ctypes, three.ctypes, M.ctypes, three.ctypes, sv.ctypes, U.ctypes, three.ctypes, Vt.ctypes,
+                three.ctypes, work.ctypes, lwork.ctypes, iwork.ctypes, info.ctypes)
+        if info[0] != 0:
+            raise np.linalg.LinAlgError("SVD did not converge.")
+        # U[i, j] is U[i + 3 j], Vt[i, j] is Vt[i + 3 j]
         for i in range(3):
             for k in range(3):
-                out[n, i, k] = Vt[0, i] * U[k, 0] + Vt[1, i] * U[k, 1] + Vt[2, i] * U[k, 2]
-        if np.linalg.det(out[n]) < 0:
+                out[n, i, k] = Vt[3 * i] * U[k] + Vt[1 + 3 * i] * U[k + 3] + Vt[2 + 3 * i] * U[k + 6]
+        # the sign of the determinant (+-1 up to rounding; LAPACK's LU was used before)
+        o = out[n]
+        det = (o[0, 0] * (o[1, 1] * o[2, 2] - o[1, 2] * o[2, 1]) - o[0, 1] * (o[1, 0] * o[2, 2] - o[1, 2] * o[2, 0])
+               + o[0, 2] * (o[1, 0] * o[2, 1] - o[1, 1] * o[2, 0]))
+        if det < 0:
             for i in range(3):
                 for k in range(3):
-                    out[n, i, k] = Vt[0, i] * U[k, 0] + Vt[1, i] * U[k, 1] - Vt[2, i] * U[k, 2]
+                    out[n, i, k] = Vt[3 * i] * U[k] + Vt[1 + 3 * i] * U[k + 3] - Vt[2 + 3 * i] * U[k + 6]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False)

@@ -11,6 +11,11 @@ matrix, hence the same bits as ``cho_solve(cho_factor(a, lower=False), b)``.
 
 Where the LAPACK entry points cannot be found (an unusual SciPy build),
 :func:`cholesky_solve` falls back to SciPy's functions, with the same results.
+
+:func:`register_lapack_symbol` gives cached numba kernels a LAPACK routine by name: the
+registration's rotation step (:func:`topomatch._kernels.rotation_step`) calls ``dgesdd``
+for its 3 x 3 SVDs as numba's ``np.linalg.svd`` does, with its buffers and workspace made
+once per step instead of once per node (the same bits, about a third less time).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from topomatch.typing import FloatArray
 
-__all__ = ["cholesky_solve"]
+__all__ = ["cholesky_solve", "register_lapack_symbol"]
 
 
 def _lapack_address(name: str) -> int:
@@ -43,6 +48,20 @@ def _lapack_address(name: str) -> int:
     if not address:
         raise RuntimeError(f"no address for LAPACK {name}")
     return int(address)
+
+
+@functools.cache
+def register_lapack_symbol(symbol: str, name: str) -> None:
+    """Make routine ``name`` of :mod:`scipy.linalg.cython_lapack` known to numba's linker as ``symbol``.
+
+    Compiled code that declares ``numba.types.ExternalFunction(symbol, ...)`` then calls it
+    by name, so that it can be cached on disk (a ctypes function's address would be baked
+    in, and it changes from process to process). numba's own ``np.linalg`` functions
+    reach LAPACK through the same table of SciPy's.
+    """
+    import llvmlite.binding
+
+    llvmlite.binding.add_symbol(symbol, _lapack_address(name))
 
 
 @functools.cache
