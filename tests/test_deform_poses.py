@@ -486,3 +486,43 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
     for bad in (1, "yes", None):
         with pytest.raises(ValueError, match="features_after_choice"):
             make_matcher("deform", features_after_choice=bad).register(src, tgt)
+
+
+def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch):
+    import topomatch.matching.deform as deform_module
+
+    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
+    poses = [("b", bends[2][1]), ("a", bends[0][1])]
+    fast = {**_FAST_POSED, "n_starts": 2}
+    seen: list[tuple[int, list[str], list[float]]] = []
+    real = deform_module._collected
+
+    def spy(v):
+        out = real(v)
+        seen.append((out.start, [h.label for h in out.hyps], [float(r.residual) for r in out.results]))
+        return out
+
+    monkeypatch.setattr(deform_module, "_collected", spy)
+    every, info_every = make_matcher("deform", **fast).register(src, tgt, poses=poses)
+    runs_every = {start: (labels, res) for start, labels, res in seen}
+    seen.clear()
+    followed, info = make_matcher("deform", **fast, follow_top=2).register(src, tgt, poses=poses)
+    runs = {start: (labels, res) for start, labels, res in seen}  # the last record of each start
+    # start 0 verifies every hypothesis, as before
+    assert runs[0] == runs_every[0]
+    best = [runs[0][0][i] for i in np.argsort(runs[0][1], kind="stable")[:2]]
+    # start 1 verifies only those two, each as start 1 did when it verified them all
+    assert sorted(runs[1][0]) == sorted(best) == info["runs"][1]["followed"]
+    labels_1, res_1 = runs_every[1]
+    assert all(r == res_1[labels_1.index(label)] for label, r in zip(*runs[1]))
+    assert "followed" not in info["runs"][0] and len(runs_every[1][0]) > 2
+    # the spectral hypotheses it does not verify are not computed
+    assert not any(label.startswith(("hks ", "wks ")) for label in runs[1][0] if label not in best)
+    # the same on one thread (the follower waits for its leader either way)
+    one, info_one = make_matcher("deform", **fast, follow_top=2, n_threads=1).register(src, tgt, poses=poses)
+    np.testing.assert_array_equal(one, followed)
+    assert [r["score"] for r in info_one["runs"]] == [r["score"] for r in info["runs"]]
+    assert every.shape == followed.shape and info_every["runs"][0]["verified_score"] == info["runs"][0]["verified_score"]
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="follow_top"):
+            make_matcher("deform", follow_top=bad).register(src, tgt)

@@ -318,8 +318,12 @@ def spectral_hypotheses(
             p = nearest_neighbors(e1[:, :kc] @ C.T, e2[:, :kc])
             C = _fmap_from_p2p_rows(p, e1[:, :kk], e2[:, :kk], m2)
         p = nearest_neighbors(e1[:, : C.shape[0]] @ C.T, e2[:, : C.shape[0]])
-        label = f"{kind} k={k} {'reversing' if rev else 'preserving'}"
-        yield Hypothesis(label, np.asarray(samples_1)[p])
+        yield Hypothesis(_spectral_label(kind, k, rev), np.asarray(samples_1)[p])
+
+
+def _spectral_label(kind: str, k: int, reversing: bool) -> str:
+    """The label of :func:`spectral_hypotheses`' hypothesis for one setting, e.g. ``"hks k=10 preserving"``."""
+    return f"{kind} k={k} {'reversing' if reversing else 'preserving'}"
 
 
 RIGID_FRAMES = ("as-given", "principal-axes")
@@ -1366,6 +1370,14 @@ class DeformMatcher(Matcher):
         with their own pose left out (0.018-0.055); with the two nearest training poses
         also left out (``K = 2``), only kid14 (0.063) and kid15 (0.104, the one map a
         challenger replaces) reach it. ``0``: always (attempt #136; #137 gates it).
+    follow_top : int
+        When :meth:`register` makes registrations from several sampling starts
+        (``n_starts``): a registration from a later start verifies only the hypotheses
+        (by label) that ranked among the ``follow_top`` best in the verification of
+        start 0 at the same working size and with the same poses; the spectral settings
+        and bent copies outside them are not computed. Its continuation, swaps and
+        refinement are as before, on its own samples and graph. ``0`` (default): every
+        start verifies every hypothesis. Attempt #158 in ``docs/flagship.md``.
     features_after_choice : bool
         When several registrations are refined: compare them (the choice, the folded
         shares and the challengers' judgement) after the fine registration, and give only
@@ -1429,6 +1441,7 @@ class DeformMatcher(Matcher):
         challenge_above: float = 0.06,
         challenge_judge: str = "folded",
         features_after_choice: bool = False,
+        follow_top: int = 0,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1477,6 +1490,7 @@ class DeformMatcher(Matcher):
         self.challenge_above = challenge_above
         self.challenge_judge = challenge_judge
         self.features_after_choice = features_after_choice
+        self.follow_top = follow_top
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches"):
@@ -1551,6 +1565,9 @@ class DeformMatcher(Matcher):
             raise ValueError(f"challenge_judge must be 'folded' or 'score', got {self.challenge_judge!r}")
         if not isinstance(self.features_after_choice, (bool, np.bool_)):
             raise ValueError(f"features_after_choice must be True or False, got {self.features_after_choice!r}")
+        ft = self.follow_top
+        if isinstance(ft, (bool, np.bool_)) or not isinstance(ft, (int, np.integer)) or ft < 0:
+            raise ValueError(f"follow_top must be an integer >= 0, got {ft!r}")
         rr = self.refine_runs
         if rr is not None and (isinstance(rr, (bool, np.bool_)) or not isinstance(rr, (int, np.integer)) or rr < 1):
             raise ValueError(f"refine_runs must be a positive integer or None, got {rr!r}")
@@ -1719,12 +1736,15 @@ class DeformMatcher(Matcher):
         memo: dict[str, Any] | None = None,
         pool: ThreadPoolExecutor | None = None,
         intrinsic: TriangleMesh | None = None,
+        only: frozenset[str] | None = None,
     ) -> tuple[list[Hypothesis], list[Any]]:
         """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
 
         ``memo`` keeps the poses' alignments (:func:`align_poses`) and the shapes'
         spectral data (:func:`spectral_hypotheses`' ``cache``) for the next starts: the
         first call aligns the poses on its samples, later calls only read the map off.
+        ``only``: verify only the hypotheses with these labels (``follow_top``); the
+        spectral settings and bent copies without one are not computed. ``None``: all.
         """
         s1, s2 = samples
         W = target.vertices
@@ -1743,15 +1763,23 @@ class DeformMatcher(Matcher):
             source.eigenbasis(self.k_zoomout)
         # generators: nothing is computed before a hypothesis is asked for
         # (the maps are between vertex indices: ``intrinsic`` has the source's vertices, in order)
-        spectral = spectral_hypotheses(source if intrinsic is None else intrinsic, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
+        if only is not None:
+            settings = [x for x in settings if _spectral_label(*x) in only]
+        spectral = (
+            spectral_hypotheses(source if intrinsic is None else intrinsic, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
+            if settings
+            else iter(())
+        )
+        bent = self.articulated > 0 and (only is None or any(label.startswith("bent ") for label in only))
         extrinsic = chain(
             rigid_hypotheses(source, target, s1, s2, self._rigid_frames(self._has_pose_hypotheses(poses))),
-            articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles))
-            if self.articulated > 0
-            else iter(()),
+            articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles)) if bent else iter(()),
             self._pose_hypotheses(source, target, s1, s2, poses, {} if memo is None else memo),
         )
         others = self._matcher_hypotheses(source, target, s2)
+        if only is not None:  # the rigid, bent and pose alignments are cheap beside a verification
+            extrinsic = (h for h in extrinsic if h.label in only)
+            others = (h for h in others if h.label in only)
 
         def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
@@ -2030,13 +2058,30 @@ class DeformMatcher(Matcher):
                 prepared[size] = _Working(src, tgt, src_poses, memo, back, ranked)
             return prepared[size]
 
+        def submit(
+            size: int | None, start: int, with_poses: bool, posed: int | None, challengers: bool, only: frozenset[str] | None,
+            pool: ThreadPoolExecutor | None,
+        ) -> tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]:
+            """One run's hypotheses, submitted for verification (to ``pool``, if any), with its record."""
+            src, tgt, src_poses, memo, back, _ = prepare(size)
+            rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
+            # the posed copy is the source's surface in another pose: its intrinsic data
+            # (spectral hypotheses, local features) are the source's own
+            v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool,
+                               intrinsic=None if posed is None else src, only=only)
+            home = source.vertices if posed is None else poses[posed][1]
+            run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
+                   "source_pose": None if posed is None else src_poses[posed][0],
+                   "vertices": (src.n_vertices, tgt.n_vertices), "challenger": challengers}
+            return v, run, back, home
+
         def verify(challengers: bool) -> list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]]:
             """Verify the contenders' runs (``challengers=False``) or the challengers' (``True``), in plan order."""
             t_verify, decimation = time.perf_counter(), seconds["decimation"]
             submitted: list[tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]] = []
             with (one_blas_thread() if shared else nullcontext()), (ThreadPoolExecutor(max_workers=self._n_threads()) if shared else nullcontext()) as pool:
                 for size in sizes:
-                    src, tgt, src_poses, memo, back, ranked = prepare(size)
+                    src, tgt, _, _, _, ranked = prepare(size)
                     # (start, with the poses, posed source): "extra" registers the poses apart,
                     # from start 0; each posed source (an index into poses) is registered from start 0
                     if challengers:  # the next-ranked poses: registered only to challenge the choice
@@ -2046,21 +2091,27 @@ class DeformMatcher(Matcher):
                         plan = [(k, not extra, None) for k in range(int(self.n_starts))] if plain else []
                         plan += [(0, True, None)] if extra and plain else []
                         plan += [(0, False, i) for i in ranked[:n_posed]]
+                    # follow_top: a later start's run waits for start 0's (same poses) and verifies
+                    # only its best hypotheses; it is made after the others, in its place in the plan
+                    leaders: dict[bool, _Verified] = {}
+                    followers: list[tuple[int, int, bool]] = []
                     for start, with_poses, posed in plan:
                         key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
                         if key in done:  # e.g. both meshes within two sizes
                             continue
                         done.add(key)
-                        rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
-                        # the posed copy is the source's surface in another pose: its intrinsic data
-                        # (spectral hypotheses, local features) are the source's own
-                        v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool,
-                                           intrinsic=None if posed is None else src)
-                        home = source.vertices if posed is None else poses[posed][1]
-                        run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
-                               "source_pose": None if posed is None else src_poses[posed][0],
-                               "vertices": (src.n_vertices, tgt.n_vertices), "challenger": challengers}
-                        submitted.append((v, run, back, home))
+                        if self.follow_top > 0 and posed is None and start > 0 and with_poses in leaders:
+                            followers.append((len(submitted), start, with_poses))
+                            submitted.append(None)  # type: ignore[arg-type]
+                            continue
+                        submitted.append(submit(size, start, with_poses, posed, challengers, None, pool))
+                        if posed is None and start == 0:
+                            leaders[with_poses] = submitted[-1][0]
+                    for index, start, with_poses in followers:
+                        lead = _collected(leaders[with_poses])
+                        only = frozenset(lead.hyps[i].label for i in lead.order[: int(self.follow_top)])
+                        submitted[index] = submit(size, start, with_poses, None, challengers, only, pool)
+                        submitted[index][1]["followed"] = sorted(only)
                 submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
             out = []
             for v, run, back, home in submitted:
@@ -2200,15 +2251,16 @@ class DeformMatcher(Matcher):
         memo: dict[str, Any] | None = None,
         pool: ThreadPoolExecutor | None = None,
         intrinsic: TriangleMesh | None = None,
+        only: frozenset[str] | None = None,
     ) -> _Verified:
-        """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification.
+        """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification (of the labels ``only``, if given).
 
         The results are ordered by :func:`_collected`, which also waits for them when they
         were only submitted to a ``pool``.
         """
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic)
+        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic, only)
         return _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic)
 
     def _refined(self, v: _Verified, features: bool = True) -> tuple[FloatArray, dict[str, Any]]:
