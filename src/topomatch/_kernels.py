@@ -8,11 +8,15 @@ from numba import types
 
 from topomatch._lapack import register_lapack_symbol
 
-# LAPACK's dgesdd (SciPy's, the routine behind numba's ``np.linalg.svd``) by a symbol name,
-# so that the kernels calling it stay cached on disk (an address would be baked in)
+# SciPy's LAPACK routines (those behind numba's ``np.linalg`` and SciPy's ``cho_factor`` /
+# ``cho_solve``) by symbol names, so that the kernels calling them stay cached on disk (an
+# address would be baked in); every argument is a pointer (Fortran)
 _VP = types.voidptr
 _dgesdd = types.ExternalFunction("topomatch_dgesdd", types.void(*(_VP,) * 14))
-register_lapack_symbol("topomatch_dgesdd", "dgesdd")
+_dpotrf = types.ExternalFunction("topomatch_dpotrf", types.void(*(_VP,) * 5))
+_dpotrs = types.ExternalFunction("topomatch_dpotrs", types.void(*(_VP,) * 8))
+for _name in ("dgesdd", "dpotrf", "dpotrs"):
+    register_lapack_symbol(f"topomatch_{_name}", _name)
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)
@@ -131,6 +135,25 @@ def farthest_points(cols, first, out):  # pragma: no cover - compiled
             if dmin[i] > dmin[best]:
                 best = i
         cur = best
+
+
+@numba.njit(cache=True, nogil=True)
+def cholesky_factor_solve(A, B):  # pragma: no cover - compiled
+    """LAPACK's ``dpotrf`` then ``dpotrs`` (upper triangle) on Fortran-ordered ``A`` (n, n) and ``B`` (n, r), in place; LAPACK's ``info``.
+
+    The routines SciPy's ``cho_factor`` and ``cho_solve`` call, on the same arrays: the same
+    bits (:func:`topomatch._lapack.cholesky_solve`).
+    """
+    n = A.shape[0]
+    uplo = np.array([ord("U")], np.uint8)
+    size = np.array([n], np.int32)
+    cols = np.array([B.shape[1]], np.int32)
+    info = np.zeros(1, np.int32)
+    _dpotrf(uplo.ctypes, size.ctypes, A.ctypes, size.ctypes, info.ctypes)
+    if info[0] != 0:
+        return info[0]
+    _dpotrs(uplo.ctypes, size.ctypes, cols.ctypes, A.ctypes, size.ctypes, B.ctypes, size.ctypes, info.ctypes)
+    return info[0]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False)

@@ -6,16 +6,18 @@ matrices' work). The registrations that :class:`~topomatch.matching.deform.Defor
 verifies on threads solve such a system in every iteration, so each solve stalled the
 other thread. Here the same LAPACK routines of SciPy's own LAPACK (``dpotrf`` then
 ``dpotrs``, upper triangle, through :mod:`scipy.linalg.cython_lapack`) are called from a
-numba function that releases the GIL: the same routine on the same Fortran-ordered
-matrix, hence the same bits as ``cho_solve(cho_factor(a, lower=False), b)``.
+numba function that releases the GIL (:func:`topomatch._kernels.cholesky_factor_solve`):
+the same routine on the same Fortran-ordered matrix, hence the same bits as
+``cho_solve(cho_factor(a, lower=False), b)``.
 
 Where the LAPACK entry points cannot be found (an unusual SciPy build),
 :func:`cholesky_solve` falls back to SciPy's functions, with the same results.
 
-:func:`register_lapack_symbol` gives cached numba kernels a LAPACK routine by name: the
-registration's rotation step (:func:`topomatch._kernels.rotation_step`) calls ``dgesdd``
-for its 3 x 3 SVDs as numba's ``np.linalg.svd`` does, with its buffers and workspace made
-once per step instead of once per node (the same bits, about a third less time).
+:func:`register_lapack_symbol` gives numba kernels a LAPACK routine by name, so that they
+are cached on disk: that solve, and the registration's rotation step
+(:func:`topomatch._kernels.rotation_step`), which calls ``dgesdd`` for its 3 x 3 SVDs as
+numba's ``np.linalg.svd`` does, with its buffers and workspace made once per step instead
+of once per node (the same bits, about a third less time).
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ from __future__ import annotations
 import ctypes
 import functools
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
@@ -66,31 +67,12 @@ def register_lapack_symbol(symbol: str, name: str) -> None:
 
 @functools.cache
 def _compiled() -> Callable[[FloatArray, FloatArray], int] | None:
-    """The compiled factorise-and-solve (compiled once per process, at the first solve), or ``None`` when LAPACK's entry points are not reachable."""
+    """The compiled factorise-and-solve (:func:`topomatch._kernels.cholesky_factor_solve`), or ``None`` when LAPACK's entry points are not reachable."""
     try:
-        import numba
-
-        vp = ctypes.c_void_p
-        potrf = ctypes.CFUNCTYPE(None, vp, vp, vp, vp, vp)(_lapack_address("dpotrf"))
-        potrs = ctypes.CFUNCTYPE(None, vp, vp, vp, vp, vp, vp, vp, vp)(_lapack_address("dpotrs"))
+        from topomatch._kernels import cholesky_factor_solve
     except Exception:  # pragma: no cover - unusual SciPy builds
         return None
-
-    # not cached on disk: the routines' addresses change from process to process
-    @numba.njit(nogil=True)
-    def factor_solve(A: Any, B: Any) -> int:  # pragma: no cover - compiled
-        n = A.shape[0]
-        uplo = np.array([ord("U")], np.uint8)
-        size = np.array([n], np.int32)
-        cols = np.array([B.shape[1]], np.int32)
-        info = np.zeros(1, np.int32)
-        potrf(uplo.ctypes, size.ctypes, A.ctypes, size.ctypes, info.ctypes)
-        if info[0] != 0:
-            return info[0]
-        potrs(uplo.ctypes, size.ctypes, cols.ctypes, A.ctypes, size.ctypes, B.ctypes, size.ctypes, info.ctypes)
-        return info[0]
-
-    return factor_solve  # type: ignore[no-any-return]
+    return cholesky_factor_solve  # type: ignore[no-any-return]
 
 
 def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
