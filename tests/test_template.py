@@ -17,6 +17,7 @@ from topomatch.matching.template import (
     CHALLENGE_ABOVE,
     CHALLENGE_JUDGE,
     FEATURE_ITERATIONS,
+    FOLLOW_TOP,
     POSE_CHALLENGERS,
     POSE_SOURCES,
     POSED_STARTS,
@@ -103,7 +104,8 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert c.info["registrations"] == {"target": "computed", "source": "is the template"}
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
     params = {**ACCURATE, "feature_icp_iterations": FEATURE_ITERATIONS, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS,
-              "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE}
+              "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE,
+              "follow_top": FOLLOW_TOP}
     deformed, _ = make_matcher("deform", **params).register(src, tgt, poses=_poses_for(fitted, tgt))
     plain = map_from_deformed(tgt, deformed, src.faces)
     # the map to the template with its mirrored patches repaired (the template's symmetry map from the null shape)
@@ -152,6 +154,10 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert copy.copy(fitted).set_params(deform={**FAST, "refine_runs": None})._deformer().refine_runs is None
     assert copy.copy(fitted).set_params(deform={**FAST, "pose_sources": 0})._deformer().refine_runs is None
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().refine_runs is None
+    # follow_top: with training poses the second start verifies the first start's four best (#164), else every hypothesis
+    assert fitted._deformer().follow_top == FOLLOW_TOP == 4
+    assert copy.copy(fitted).set_params(deform={**FAST, "follow_top": 0})._deformer().follow_top == 0
+    assert make_matcher("template").fit([builtin["syn00"]])._deformer().follow_top == 0
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5
     assert make_matcher("template", deform={"n_starts": 1})._deformer().get_params()["n_starts"] == 1

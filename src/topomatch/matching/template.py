@@ -50,7 +50,7 @@ from topomatch.matching.deform import ACCURATE, WORKING_SIZES, DeformMatcher, ma
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["CHALLENGE_ABOVE", "CHALLENGE_JUDGE", "FEATURE_ITERATIONS", "POSED_STARTS", "POSE_CHALLENGERS", "POSE_SOURCES", "QUICK", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+__all__ = ["CHALLENGE_ABOVE", "CHALLENGE_JUDGE", "FEATURE_ITERATIONS", "FOLLOW_TOP", "POSED_STARTS", "POSE_CHALLENGERS", "POSE_SOURCES", "QUICK", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
 
 #: Sampling starts of a registration that has the training poses among its hypotheses.
 #: Chosen on the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra x100):
@@ -96,6 +96,15 @@ CHALLENGE_JUDGE = "score"
 #: unchanged at ``K = 0`` and ``K = 2``; 4 % changes a training map. Adopted by a rule written
 #: down before any test run (attempt #140 in ``docs/flagship.md``).
 CHALLENGE_ABOVE = 0.05
+
+#: With training poses, the second sampling start verifies only the hypotheses (by label)
+#: among the first start's ``FOLLOW_TOP`` best (``DeformMatcher.follow_top``); its spectral
+#: settings and bent copies outside them are not computed. Training pairs (leave-one-out):
+#: all 15 maps equal to every hypothesis's; the 52 contact stand-ins and the 210
+#: noisy-noisy training pairs within the rule written down before their runs; about 0.9 of
+#: the time per pair (attempts #158 and #164 in ``docs/flagship.md``).
+#: ``{"follow_top": 0}`` verifies every hypothesis in every start, as before session 51.
+FOLLOW_TOP = 4
 
 QUICK: Mapping[str, Any] = MappingProxyType({
     "n_starts": 1, "refine_runs": 1, "coarse_icp_iterations": 10, "fine_icp_iterations": 25,
@@ -293,7 +302,9 @@ class TemplateMatcher(Matcher):
         73.4 s); ``{"start_sizes": None}`` registers both at every size. Of these
         registrations only the :data:`REFINED_RUNS` (two) whose verified registrations
         score best on the full meshes are refined (``refine_runs``, attempt #97);
-        ``{"refine_runs": None}`` refines them all.
+        ``{"refine_runs": None}`` refines them all. The second start verifies only
+        the hypotheses among the first start's :data:`FOLLOW_TOP` (four) best
+        (``follow_top``, attempts #158, #164); ``{"follow_top": 0}`` verifies them all.
     quick : bool, default False
         With training poses, register with :data:`QUICK` (session 46, attempt #148): at
         about 0.43 of the default's time per pair; training pairs 1.7766 against
@@ -391,7 +402,8 @@ class TemplateMatcher(Matcher):
         # the training pairs, #86, #90); without, ACCURATE
         trained = bool(getattr(self, "poses_", None))
         base = {"n_starts": POSED_STARTS, "pose_sources": POSE_SOURCES, "feature_icp_iterations": FEATURE_ITERATIONS,
-                "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE} if trained else dict(ACCURATE)
+                "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE,
+                "follow_top": FOLLOW_TOP} if trained else dict(ACCURATE)
         if self.quick and trained:
             base.update(QUICK)
         if self.deform is not None and not isinstance(self.deform, Mapping):
