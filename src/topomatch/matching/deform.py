@@ -1377,7 +1377,9 @@ class DeformMatcher(Matcher):
         start 0 at the same working size and with the same poses; the spectral settings
         and bent copies outside them are not computed. Its continuation, swaps and
         refinement are as before, on its own samples and graph. ``0`` (default): every
-        start verifies every hypothesis. Attempt #158 in ``docs/flagship.md``.
+        start verifies every hypothesis. ``template`` uses 4 with training poses since
+        session 51 (:data:`~topomatch.matching.template.FOLLOW_TOP`). Attempts #158 and
+        #164 in ``docs/flagship.md``.
     features_after_choice : bool
         When several registrations are refined: compare them (the choice, the folded
         shares and the challengers' judgement) after the fine registration, and give only
