@@ -1380,6 +1380,10 @@ class DeformMatcher(Matcher):
         start verifies every hypothesis. ``template`` uses 4 with training poses since
         session 51 (:data:`~topomatch.matching.template.FOLLOW_TOP`). Attempts #158 and
         #164 in ``docs/flagship.md``.
+    follow_spectral : bool
+        With ``follow_top``: a later start also verifies every spectral setting
+        (``hypotheses``) on its own samples, beside the first start's best. ``False``
+        (default): only the first start's best. Attempt #165 in ``docs/flagship.md``.
     features_after_choice : bool
         When several registrations are refined: compare them (the choice, the folded
         shares and the challengers' judgement) after the fine registration, and give only
@@ -1444,6 +1448,7 @@ class DeformMatcher(Matcher):
         challenge_judge: str = "folded",
         features_after_choice: bool = False,
         follow_top: int = 0,
+        follow_spectral: bool = False,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1493,9 +1498,10 @@ class DeformMatcher(Matcher):
         self.challenge_judge = challenge_judge
         self.features_after_choice = features_after_choice
         self.follow_top = follow_top
+        self.follow_spectral = follow_spectral
 
     def _check(self) -> list[tuple[str, int, bool]]:
-        for flag in ("background_eigenbasis", "fill_patches"):
+        for flag in ("background_eigenbasis", "fill_patches", "follow_spectral"):
             if not isinstance(getattr(self, flag), (bool, np.bool_)):
                 raise ValueError(f"deform: {flag} must be True or False, got {getattr(self, flag)!r}")
         settings = []
@@ -2112,6 +2118,8 @@ class DeformMatcher(Matcher):
                     for index, start, with_poses in followers:
                         lead = _collected(leaders[with_poses])
                         only = frozenset(lead.hyps[i].label for i in lead.order[: int(self.follow_top)])
+                        if self.follow_spectral:  # every spectral setting on the follower's own samples
+                            only |= frozenset(_spectral_label(*x) for x in settings)
                         submitted[index] = submit(size, start, with_poses, None, challengers, only, pool)
                         submitted[index][1]["followed"] = sorted(only)
                 submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
