@@ -537,3 +537,39 @@ def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch
     for bad in (-1, True, 1.5):
         with pytest.raises(ValueError, match="follow_top"):
             make_matcher("deform", follow_top=bad).register(src, tgt)
+
+
+def test_follow_spectral_adds_every_spectral_setting_to_the_followed(builtin, monkeypatch):
+    import topomatch.matching.deform as deform_module
+
+    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
+    poses = [("b", bends[2][1]), ("a", bends[0][1])]
+    fast = {**_FAST_POSED, "n_starts": 2}
+    seen: list[tuple[int, list[str], list[float]]] = []
+    real = deform_module._collected
+
+    def spy(v):
+        out = real(v)
+        seen.append((out.start, [h.label for h in out.hyps], [float(r.residual) for r in out.results]))
+        return out
+
+    monkeypatch.setattr(deform_module, "_collected", spy)
+    make_matcher("deform", **fast).register(src, tgt, poses=poses)
+    runs_every = {start: (labels, res) for start, labels, res in seen}
+    seen.clear()
+    _, info = make_matcher("deform", **fast, follow_top=2, follow_spectral=True).register(src, tgt, poses=poses)
+    runs = {start: (labels, res) for start, labels, res in seen}
+    spectral = [deform_module._spectral_label(*x) for x in make_matcher("deform")._check()]
+    best = [runs[0][0][i] for i in np.argsort(runs[0][1], kind="stable")[:2]]
+    # start 1 verifies start 0's two best and every spectral setting, each as it did when it verified them all
+    assert sorted(runs[1][0]) == sorted(set(best) | set(spectral)) == info["runs"][1]["followed"]
+    assert len(runs[1][0]) < len(runs_every[1][0])
+    labels_1, res_1 = runs_every[1]
+    assert all(r == res_1[labels_1.index(label)] for label, r in zip(*runs[1]))
+    # without follow_top it changes nothing: every start verifies every hypothesis
+    seen.clear()
+    make_matcher("deform", **fast, follow_spectral=True).register(src, tgt, poses=poses)
+    assert {start: (labels, res) for start, labels, res in seen} == runs_every
+    for bad in (1, "yes", None):
+        with pytest.raises(ValueError, match="follow_spectral"):
+            make_matcher("deform", follow_spectral=bad).register(src, tgt)
