@@ -488,12 +488,10 @@ def test_deform_registers_the_source_in_its_best_fitting_known_pose(builtin):
             make_matcher("deform", features_after_choice=bad).register(src, tgt)
 
 
-def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch):
+def _spy_rankings(monkeypatch) -> list[tuple[int, list[str], list[float]]]:
+    """Spy on ``deform._collected``: each verified registration's (start, labels, residuals) is appended to the list returned."""
     import topomatch.matching.deform as deform_module
 
-    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
-    poses = [("b", bends[2][1]), ("a", bends[0][1])]
-    fast = {**_FAST_POSED, "n_starts": 2}
     seen: list[tuple[int, list[str], list[float]]] = []
     real = deform_module._collected
 
@@ -503,8 +501,27 @@ def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch
         return out
 
     monkeypatch.setattr(deform_module, "_collected", spy)
+    return seen
+
+
+def _by_start(seen: list[tuple[int, list[str], list[float]]]) -> dict[int, tuple[list[str], list[float]]]:
+    """The last record of each start: its labels and residuals."""
+    return {start: (labels, res) for start, labels, res in seen}
+
+
+def _two_starts_with_poses(builtin):
+    """A bent syn00 target, two of its bends as poses, and fast settings with two sampling starts."""
+    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
+    return src, tgt, [("b", bends[2][1]), ("a", bends[0][1])], {**_FAST_POSED, "n_starts": 2}
+
+
+def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch):
+    import topomatch.matching.deform as deform_module
+
+    src, tgt, poses, fast = _two_starts_with_poses(builtin)
+    seen = _spy_rankings(monkeypatch)
     every, info_every = make_matcher("deform", **fast).register(src, tgt, poses=poses)
-    runs_every = {start: (labels, res) for start, labels, res in seen}
+    runs_every = _by_start(seen)
     seen.clear()
     asked: list[list[str]] = []  # the spectral settings each call computes, by label
     spectral = deform_module.spectral_hypotheses
@@ -515,7 +532,7 @@ def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch
 
     monkeypatch.setattr(deform_module, "spectral_hypotheses", spectral_spy)
     followed, info = make_matcher("deform", **fast, follow_top=2).register(src, tgt, poses=poses)
-    runs = {start: (labels, res) for start, labels, res in seen}  # the last record of each start
+    runs = _by_start(seen)  # the last record of each start
     # start 0 verifies every hypothesis, as before
     assert runs[0] == runs_every[0]
     best = [runs[0][0][i] for i in np.argsort(runs[0][1], kind="stable")[:2]]
@@ -542,23 +559,13 @@ def test_follow_top_verifies_only_start_0_s_best_hypotheses(builtin, monkeypatch
 def test_follow_spectral_adds_every_spectral_setting_to_the_followed(builtin, monkeypatch):
     import topomatch.matching.deform as deform_module
 
-    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
-    poses = [("b", bends[2][1]), ("a", bends[0][1])]
-    fast = {**_FAST_POSED, "n_starts": 2}
-    seen: list[tuple[int, list[str], list[float]]] = []
-    real = deform_module._collected
-
-    def spy(v):
-        out = real(v)
-        seen.append((out.start, [h.label for h in out.hyps], [float(r.residual) for r in out.results]))
-        return out
-
-    monkeypatch.setattr(deform_module, "_collected", spy)
+    src, tgt, poses, fast = _two_starts_with_poses(builtin)
+    seen = _spy_rankings(monkeypatch)
     make_matcher("deform", **fast).register(src, tgt, poses=poses)
-    runs_every = {start: (labels, res) for start, labels, res in seen}
+    runs_every = _by_start(seen)
     seen.clear()
     _, info = make_matcher("deform", **fast, follow_top=2, follow_spectral=True).register(src, tgt, poses=poses)
-    runs = {start: (labels, res) for start, labels, res in seen}
+    runs = _by_start(seen)
     spectral = [deform_module._spectral_label(*x) for x in make_matcher("deform")._check()]
     best = [runs[0][0][i] for i in np.argsort(runs[0][1], kind="stable")[:2]]
     # start 1 verifies start 0's two best and every spectral setting, each as it did when it verified them all
@@ -569,7 +576,7 @@ def test_follow_spectral_adds_every_spectral_setting_to_the_followed(builtin, mo
     # without follow_top it changes nothing: every start verifies every hypothesis
     seen.clear()
     make_matcher("deform", **fast, follow_spectral=True).register(src, tgt, poses=poses)
-    assert {start: (labels, res) for start, labels, res in seen} == runs_every
+    assert _by_start(seen) == runs_every
     for bad in (1, "yes", None):
         with pytest.raises(ValueError, match="follow_spectral"):
             make_matcher("deform", follow_spectral=bad).register(src, tgt)
