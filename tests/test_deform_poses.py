@@ -580,3 +580,36 @@ def test_follow_spectral_adds_every_spectral_setting_to_the_followed(builtin, mo
     for bad in (1, "yes", None):
         with pytest.raises(ValueError, match="follow_spectral"):
             make_matcher("deform", follow_spectral=bad).register(src, tgt)
+
+
+def test_follow_bent_adds_the_follower_s_own_bent_copies_when_start_0_s_best_hold_one(builtin, monkeypatch):
+    src, tgt, poses, fast = _two_starts_with_poses(builtin)
+    fast = {**fast, "articulated": 2, "bend_angles": (30.0,)}  # bent too little: a pose leads start 0's ranking
+    seen = _spy_rankings(monkeypatch)
+    make_matcher("deform", **fast).register(src, tgt, poses=poses)
+    runs_every = _by_start(seen)
+    ranked_0 = [runs_every[0][0][i] for i in np.argsort(runs_every[0][1], kind="stable")]
+    first_bent = next(i for i, label in enumerate(ranked_0) if label.startswith("bent "))
+    own_bent = {label for label in runs_every[1][0] if label.startswith("bent ")}
+    # both branches below are taken, and the flag adds a bent copy outside start 0's best
+    assert first_bent >= 1 and len(own_bent) == 2 and own_bent - set(ranked_0[: first_bent + 1])
+    labels_1, res_1 = runs_every[1]
+    # start 0's best hold a bent copy: start 1 verifies them and both of its own bent copies,
+    # each as it did when it verified them all
+    seen.clear()
+    _, info = make_matcher("deform", **fast, follow_top=first_bent + 1, follow_bent=True).register(src, tgt, poses=poses)
+    runs = _by_start(seen)
+    assert runs[0] == runs_every[0]
+    assert sorted(runs[1][0]) == sorted((set(ranked_0[: first_bent + 1]) & set(labels_1)) | own_bent)
+    assert "bent *" in info["runs"][1]["followed"]
+    assert all(r == res_1[labels_1.index(label)] for label, r in zip(*runs[1]))
+    # they hold none: as follow_top alone
+    seen.clear()
+    make_matcher("deform", **fast, follow_top=first_bent, follow_bent=True).register(src, tgt, poses=poses)
+    with_flag = _by_start(seen)
+    seen.clear()
+    make_matcher("deform", **fast, follow_top=first_bent).register(src, tgt, poses=poses)
+    assert with_flag == _by_start(seen) and sorted(with_flag[1][0]) == sorted(set(ranked_0[:first_bent]) & set(labels_1))
+    for bad in (1, "yes", None):
+        with pytest.raises(ValueError, match="follow_bent"):
+            make_matcher("deform", follow_bent=bad).register(src, tgt)

@@ -321,6 +321,11 @@ def spectral_hypotheses(
         yield Hypothesis(_spectral_label(kind, k, rev), np.asarray(samples_1)[p])
 
 
+def _followed(label: str, only: frozenset[str]) -> bool:
+    """Whether a follower (``DeformMatcher.follow_top``) verifies ``label``: listed in ``only``, or in a family listed as ``"<prefix>*"``."""
+    return label in only or any(x.endswith("*") and label.startswith(x[:-1]) for x in only)
+
+
 def _spectral_label(kind: str, k: int, reversing: bool) -> str:
     """The label of :func:`spectral_hypotheses`' hypothesis for one setting, e.g. ``"hks k=10 preserving"``."""
     return f"{kind} k={k} {'reversing' if reversing else 'preserving'}"
@@ -480,6 +485,10 @@ def bend_in_two(
     return out
 
 
+#: The labels of :func:`articulated_hypotheses`' bent copies begin with this.
+_BENT = "bent "
+
+
 def articulated_hypotheses(
     source: TriangleMesh,
     target: TriangleMesh,
@@ -523,7 +532,7 @@ def articulated_hypotheses(
     basis = source.eigenbasis(2)
     bent = bend_in_two(source.vertices, source.faces, basis.evecs[:, 1], basis.mass, angles)
     scale = float(np.sqrt(target.area / source.area))
-    posed = [(f"bent {label}", Vb, scale) for label, Vb in bent]
+    posed = [(_BENT + label, Vb, scale) for label, Vb in bent]
     for label, X, NX, _ in _align_posed(target, source.faces, samples_1, samples_2, posed, ("as-given",), n_keep, icp_iterations):
         yield Hypothesis(label, _nearest_aligned(target.vertices[samples_2], target.vertex_normals[samples_2], X, NX))
 
@@ -1384,6 +1393,12 @@ class DeformMatcher(Matcher):
         With ``follow_top``: a later start also verifies every spectral setting
         (``hypotheses``) on its own samples, beside the first start's best. ``False``
         (default): only the first start's best. Attempt #165 in ``docs/flagship.md``.
+    follow_bent : bool
+        With ``follow_top``: when the first start's best include a bent copy
+        (``articulated``), a later start also verifies every bent copy it makes on its own
+        samples (its ``articulated`` best fitting, which need not be the first start's).
+        ``False`` (default): only the first start's best. Attempt #167 in
+        ``docs/flagship.md``.
     features_after_choice : bool
         When several registrations are refined: compare them (the choice, the folded
         shares and the challengers' judgement) after the fine registration, and give only
@@ -1449,6 +1464,7 @@ class DeformMatcher(Matcher):
         features_after_choice: bool = False,
         follow_top: int = 0,
         follow_spectral: bool = False,
+        follow_bent: bool = False,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1499,9 +1515,10 @@ class DeformMatcher(Matcher):
         self.features_after_choice = features_after_choice
         self.follow_top = follow_top
         self.follow_spectral = follow_spectral
+        self.follow_bent = follow_bent
 
     def _check(self) -> list[tuple[str, int, bool]]:
-        for flag in ("background_eigenbasis", "fill_patches", "follow_spectral"):
+        for flag in ("background_eigenbasis", "fill_patches", "follow_spectral", "follow_bent"):
             if not isinstance(getattr(self, flag), (bool, np.bool_)):
                 raise ValueError(f"deform: {flag} must be True or False, got {getattr(self, flag)!r}")
         settings = []
@@ -1751,8 +1768,10 @@ class DeformMatcher(Matcher):
         ``memo`` keeps the poses' alignments (:func:`align_poses`) and the shapes'
         spectral data (:func:`spectral_hypotheses`' ``cache``) for the next starts: the
         first call aligns the poses on its samples, later calls only read the map off.
-        ``only``: verify only the hypotheses with these labels (``follow_top``); the
-        spectral settings and bent copies without one are not computed. ``None``: all.
+        ``only``: verify only the hypotheses with these labels (``follow_top``), an entry
+        ``"<prefix>*"`` standing for every label that begins with the prefix
+        (``follow_bent``); the spectral settings and bent copies without one are not
+        computed. ``None``: all.
         """
         s1, s2 = samples
         W = target.vertices
@@ -1772,13 +1791,13 @@ class DeformMatcher(Matcher):
         # generators: nothing is computed before a hypothesis is asked for
         # (the maps are between vertex indices: ``intrinsic`` has the source's vertices, in order)
         if only is not None:
-            settings = [x for x in settings if _spectral_label(*x) in only]
+            settings = [x for x in settings if _followed(_spectral_label(*x), only)]
         spectral = (
             spectral_hypotheses(source if intrinsic is None else intrinsic, target, s1, s2, settings, k_zoomout=self.k_zoomout, cache=memo)
             if settings
             else iter(())
         )
-        bent = self.articulated > 0 and (only is None or any(label.startswith("bent ") for label in only))
+        bent = self.articulated > 0 and (only is None or any(label.startswith(_BENT) for label in only))
         extrinsic = chain(
             rigid_hypotheses(source, target, s1, s2, self._rigid_frames(self._has_pose_hypotheses(poses))),
             articulated_hypotheses(source, target, s1, s2, n_keep=self.articulated, angles=tuple(self.bend_angles)) if bent else iter(()),
@@ -1786,8 +1805,8 @@ class DeformMatcher(Matcher):
         )
         others = self._matcher_hypotheses(source, target, s2)
         if only is not None:  # the rigid, bent and pose alignments are cheap beside a verification
-            extrinsic = (h for h in extrinsic if h.label in only)
-            others = (h for h in others if h.label in only)
+            extrinsic = (h for h in extrinsic if _followed(h.label, only))
+            others = (h for h in others if _followed(h.label, only))
 
         def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
@@ -2120,6 +2139,8 @@ class DeformMatcher(Matcher):
                         only = frozenset(lead.hyps[i].label for i in lead.order[: int(self.follow_top)])
                         if self.follow_spectral:  # every spectral setting on the follower's own samples
                             only |= frozenset(_spectral_label(*x) for x in settings)
+                        if self.follow_bent and any(label.startswith(_BENT) for label in only):
+                            only |= {_BENT + "*"}  # every bent copy of the follower's own
                         submitted[index] = submit(size, start, with_poses, None, challengers, only, pool)
                         submitted[index][1]["followed"] = sorted(only)
                 submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
