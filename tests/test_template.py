@@ -17,6 +17,7 @@ from topomatch.matching.template import (
     CHALLENGE_ABOVE,
     CHALLENGE_JUDGE,
     FEATURE_ITERATIONS,
+    FOLLOW_BENT,
     FOLLOW_SPECTRAL,
     FOLLOW_TOP,
     POSE_CHALLENGERS,
@@ -106,7 +107,7 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
     params = {**ACCURATE, "feature_icp_iterations": FEATURE_ITERATIONS, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS,
               "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE,
-              "follow_top": FOLLOW_TOP, "follow_spectral": FOLLOW_SPECTRAL}
+              "follow_top": FOLLOW_TOP, "follow_spectral": FOLLOW_SPECTRAL, "follow_bent": FOLLOW_BENT}
     deformed, _ = make_matcher("deform", **params).register(src, tgt, poses=_poses_for(fitted, tgt))
     plain = map_from_deformed(tgt, deformed, src.faces)
     # the map to the template with its mirrored patches repaired (the template's symmetry map from the null shape)
@@ -163,6 +164,10 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert fitted._deformer().follow_spectral is FOLLOW_SPECTRAL is True
     assert copy.copy(fitted).set_params(deform={**FAST, "follow_spectral": False})._deformer().follow_spectral is False
     assert make_matcher("template").fit([builtin["syn00"]])._deformer().follow_spectral is False
+    # follow_bent: and its own bent copies when the first start's best hold one (#167)
+    assert fitted._deformer().follow_bent is FOLLOW_BENT is True
+    assert copy.copy(fitted).set_params(deform={**FAST, "follow_bent": False})._deformer().follow_bent is False
+    assert make_matcher("template").fit([builtin["syn00"]])._deformer().follow_bent is False
     # the template's registrations use the accurate settings unless told otherwise
     assert make_matcher("template")._deformer().get_params()["n_starts"] == ACCURATE["n_starts"] == 5
     assert make_matcher("template", deform={"n_starts": 1})._deformer().get_params()["n_starts"] == 1
