@@ -50,7 +50,7 @@ from topomatch.matching.deform import ACCURATE, WORKING_SIZES, DeformMatcher, ma
 from topomatch.mesh import TriangleMesh
 from topomatch.typing import FloatArray, IndexArray, PathType
 
-__all__ = ["CHALLENGE_ABOVE", "CHALLENGE_JUDGE", "FEATURE_ITERATIONS", "FOLLOW_SPECTRAL", "FOLLOW_TOP", "POSED_STARTS", "POSE_CHALLENGERS", "POSE_SOURCES", "QUICK", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
+__all__ = ["CHALLENGE_ABOVE", "CHALLENGE_JUDGE", "FEATURE_ITERATIONS", "FOLLOW_BENT", "FOLLOW_SPECTRAL", "FOLLOW_TOP", "POSED_STARTS", "POSE_CHALLENGERS", "POSE_SOURCES", "QUICK", "REFINED_RUNS", "TemplateMatcher", "compose_through_template", "mirrored_pose", "pose_from_ground_truth"]
 
 #: Sampling starts of a registration that has the training poses among its hypotheses.
 #: Chosen on the training pairs kid00 -> kid01..kid15 (leave-one-out, Dijkstra x100):
