@@ -112,6 +112,32 @@ def test_registration_from_start_positions(pair):
 
 
 
+@pytest.mark.parametrize("stop", [0, 4, 7])
+def test_registration_stopped_and_resumed_equals_one_call(pair, stop):
+    # the verification's race (DeformMatcher.race_iterations): every hypothesis stops after a
+    # few closest-point iterations, the best go on from there, bit for bit as one call
+    src, tgt, _ = pair
+    g = build_deformation_graph(src.vertices, src.faces, 80)
+    smp = (farthest_point_sampling(300, points=src.vertices), farthest_point_sampling(300, points=tgt.vertices))
+    pts = np.arange(0, src.n_vertices, 30)
+    pairs = DataPairs(pts, tgt.vertices[pts], tgt.vertex_normals[pts], np.ones(len(pts)))
+    sched = RegistrationSchedule(n_nodes=80, fit_iterations=3, icp_iterations=8)
+    whole = register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp)
+    part = register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp, stop_after=stop)
+    assert whole.resume_at is None and part.resume_at == stop
+    # the partial result is the state after `stop` iterations: as a shorter schedule would not be
+    # (its stiffness and scales follow the whole schedule), but scored the same way
+    assert part.residual >= 0 and not np.array_equal(part.deformed, whole.deformed)
+    done = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=g, samples=smp, resume=part)
+    assert done.resume_at is None
+    assert np.array_equal(done.deformed, whole.deformed)
+    assert done.residual == whole.residual and done.distortion == whole.distortion
+    with pytest.raises(ValueError, match="resume must be the result of a call with stop_after"):
+        register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=g, samples=smp, resume=whole)
+    with pytest.raises(ValueError, match="stop_after must be an integer"):
+        register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp, stop_after=9)
+
+
 def test_position_step_reuses_the_last_factor_as_preconditioner(pair, monkeypatch):
     # a graph large enough for the sparse path: the warm-started conjugate gradients give
     # the registration the direct solves give (every step factorised afresh)
@@ -302,6 +328,47 @@ def test_deform_keeps_the_sampling_start_with_the_best_score(pair, monkeypatch):
     assert len({round(s, 12) for s in scores}) > 1
     with pytest.raises(ValueError, match="n_starts"):
         make_matcher("deform", n_starts=0, **kw).match(src, tgt)
+
+
+@pytest.mark.parametrize("n_threads", [1, 2])
+def test_deform_race_changes_nothing_when_every_hypothesis_goes_on(pair, n_threads):
+    src, tgt, _ = pair
+    kw = {"hypotheses": (("hks", 30, False),), "n_samples": 600, "coarse_nodes": 60, "fine_nodes": 150, "coarse_icp_iterations": 8,
+          "fine_icp_iterations": 6, "limb_rounds": 1, "n_threads": n_threads, "n_starts": 2, "follow_top": 2}
+    base = make_matcher("deform", **kw).match(src, tgt)
+    every = make_matcher("deform", race_iterations=3, race_keep=100, **kw).match(src, tgt)
+    np.testing.assert_array_equal(every.p2p_21, base.p2p_21)
+    assert every.info["residuals"] == base.info["residuals"]
+    # a real race: the three best after 3 iterations go on, bit for bit as uninterrupted
+    # verifications; the others keep their state after 3
+    raced = make_matcher("deform", race_iterations=3, race_keep=3, **kw)
+    hyps, results = raced.verify_hypotheses(src, tgt)
+    hyps0, results0 = make_matcher("deform", **kw).verify_hypotheses(src, tgt)
+    assert [h.label for h in hyps] == [h.label for h in hyps0] and len(hyps) > 3
+    whole = [r.resume_at is None for r in results]
+    assert sum(whole) == 3 and all(r.resume_at == 3 for r, w in zip(results, whole) if not w)
+    for r, r0, w in zip(results, results0, whole):
+        if w:
+            np.testing.assert_array_equal(r.deformed, r0.deformed)
+            assert r.residual == r0.residual
+    # the three that went on are the three best at the stop
+    samples, graph, basis = raced._setup(src, tgt)
+    _, stops, go_on = raced._verify(src, tgt, raced._check(), samples, graph, basis)
+    assert go_on is not None and all(r.resume_at == 3 for r in stops)
+    assert [i for i, w in enumerate(whole) if w] == sorted(np.argsort([r.residual for r in stops], kind="stable")[:3])
+    assert [r.residual for r, w in zip(results, whole) if not w] == [r.residual for r, w in zip(stops, whole) if not w]
+    c = raced.match(src, tgt)
+    assert c.p2p_21.shape == (tgt.n_vertices,)
+    assert set(c.info["continued"]) <= {h.label for h, w in zip(hyps, whole) if w} or c.info["run"] != 0
+
+
+def test_deform_race_rejects_bad_settings(pair):
+    src, tgt, _ = pair
+    for bad, match in (({"race_iterations": 25}, "race_iterations"), ({"race_iterations": -1}, "race_iterations"),
+                       ({"race_iterations": 5, "race_keep": 2}, "race_keep"),
+                       ({"race_iterations": 5, "accept_residual": 0.01}, "accept_residual")):
+        with pytest.raises(ValueError, match=match):
+            make_matcher("deform", **bad).match(src, tgt)
 
 
 def test_deform_matcher_rejects_bad_parameters(pair):

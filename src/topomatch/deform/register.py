@@ -839,6 +839,13 @@ class RegistrationResult:
     deformation: GraphDeformation
     residual: float
     distortion: float
+    resume_at: int | None = None
+    """With ``stop_after``: the closest-point iteration a ``resume`` call goes on from
+    (``None``: the schedule ran to its end)."""
+    _tree: PointTree | None = field(default=None, repr=False)
+    """The search tree on the deformed source at the stop, carried to the resumed call."""
+    _consumed: bool = field(default=False, repr=False)
+    """Set when a ``resume`` call has taken the state (it can go on only once)."""
 
 
 def fit_residual(
@@ -922,6 +929,8 @@ def register(
     cap: float = 0.05,
     n_threads: int = 1,
     features: tuple[FloatArray, FloatArray] | None = None,
+    stop_after: int | None = None,
+    resume: RegistrationResult | None = None,
 ) -> RegistrationResult:
     """Deform the source onto the target: correspondence fit, then closest-point ICP.
 
@@ -951,6 +960,15 @@ def register(
     features : pair of ndarray, optional
         Per-vertex features of the source, shape (n1, d), and of the target, shape
         (n2, d), for ``schedule.feature_weight > 0`` (required then).
+    stop_after : int, optional
+        Stop after this many of the schedule's closest-point iterations (the stiffness
+        and robust scales as for the whole schedule); the result's residual and
+        distortion are those of that state, and its ``resume_at`` says where to go on.
+    resume : RegistrationResult, optional
+        A result of a call with ``stop_after`` and otherwise the same arguments
+        (``init_pairs`` and ``start`` are then ignored): the schedule goes on from
+        ``resume.resume_at`` and the result is the one a call without ``stop_after``
+        gives, bit for bit. The state of ``resume.deformation`` is consumed.
 
     Returns
     -------
@@ -965,30 +983,46 @@ def register(
     W = np.asarray(target_vertices, dtype=np.float64)
     Nt = vertex_normals(W, np.asarray(target_faces, dtype=np.int64))
     scale = float(np.sqrt(face_areas(V, F).sum()))
-    if graph is None:
+    n_icp = schedule.icp_iterations
+    if stop_after is not None and not (isinstance(stop_after, (int, np.integer)) and 0 <= stop_after <= n_icp):
+        raise ValueError(f"register: stop_after must be an integer in [0, {n_icp}] (the schedule's closest-point iterations), got {stop_after!r}")
+    first_it = 0
+    if resume is not None:
+        if resume.resume_at is None:
+            raise ValueError("register: resume must be the result of a call with stop_after")
+        if resume._consumed:
+            raise ValueError("register: this stopped registration has already been resumed (its state goes on only once)")
+        resume._consumed = True
+        D = resume.deformation
+        if D.vertices.shape != V.shape or (graph is not None and D.graph is not graph):
+            raise ValueError("register: resume comes from a registration of another source or graph")
+        graph = D.graph
+        first_it = int(resume.resume_at)
+    elif graph is None:
         graph = build_deformation_graph(V, F, schedule.n_nodes)
-    D = GraphDeformation(V, F, graph)
-    if start is not None:
-        cur = start.deformed() if isinstance(start, GraphDeformation) else np.asarray(start, dtype=np.float64)
-        if cur.shape != V.shape:
-            raise ValueError(f"start positions have shape {cur.shape}, the source has {V.shape}")
-        every = DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V)))
-        D.init_from_pairs(every)
-        D.update_rotations(every)
-    if init_pairs is not None and schedule.fit_iterations > 0:
-        prior = init_pairs.weights
-        if start is None:
-            D.init_from_pairs(init_pairs)
-        pairs = init_pairs
-        for it in range(schedule.fit_iterations):
-            t = it / max(schedule.fit_iterations - 1, 1)
-            D.update_rotations(pairs)
-            D.update_positions(pairs, alpha=schedule.alpha_fit)
-            sig = scale * _geometric(schedule.sigma_fit, t)
-            r2 = np.sum((D.deformed()[init_pairs.source] - init_pairs.points) ** 2, axis=1)
-            pairs = DataPairs(init_pairs.source, init_pairs.points, init_pairs.normals, prior / (1.0 + r2 / sig**2))
-    elif start is None and init_pairs is None:
-        raise ValueError("register needs init_pairs or a start state")
+    if resume is None:
+        D = GraphDeformation(V, F, graph)
+        if start is not None:
+            cur = start.deformed() if isinstance(start, GraphDeformation) else np.asarray(start, dtype=np.float64)
+            if cur.shape != V.shape:
+                raise ValueError(f"start positions have shape {cur.shape}, the source has {V.shape}")
+            every = DataPairs(np.arange(len(V)), cur, np.zeros_like(cur), np.ones(len(V)))
+            D.init_from_pairs(every)
+            D.update_rotations(every)
+        if init_pairs is not None and schedule.fit_iterations > 0:
+            prior = init_pairs.weights
+            if start is None:
+                D.init_from_pairs(init_pairs)
+            pairs = init_pairs
+            for it in range(schedule.fit_iterations):
+                t = it / max(schedule.fit_iterations - 1, 1)
+                D.update_rotations(pairs)
+                D.update_positions(pairs, alpha=schedule.alpha_fit)
+                sig = scale * _geometric(schedule.sigma_fit, t)
+                r2 = np.sum((D.deformed()[init_pairs.source] - init_pairs.points) ** 2, axis=1)
+                pairs = DataPairs(init_pairs.source, init_pairs.points, init_pairs.normals, prior / (1.0 + r2 / sig**2))
+        elif start is None and init_pairs is None:
+            raise ValueError("register needs init_pairs or a start state")
     src_s = tgt_s = None
     if samples is not None:
         src_s, tgt_s = (np.asarray(x, dtype=np.int64) for x in samples)
@@ -996,13 +1030,16 @@ def register(
         src_s = farthest_point_sampling(min(schedule.n_samples, len(V)), points=V, first=0)
         tgt_s = farthest_point_sampling(min(schedule.n_samples, len(W)), points=W, first=0)
     tree = _search_tree(W)
-    stree: PointTree | None = None  # on the deformed source
+    stree: PointTree | None = None if resume is None else resume._tree  # on the deformed source
     feats = _checked_features(schedule, features, len(V), len(W))
+    if feats is not None and (stop_after is not None or resume is not None):
+        raise ValueError("register: stop_after and resume are for registrations without features")
     joint: tuple[float, FloatArray, JointTree] | None = None  # (weight, target's joint points, their tree)
     jtree: JointTree | None = None  # on the deformed source's joint points
+    last_it = n_icp if stop_after is None else min(n_icp, max(int(stop_after), first_it))
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
-        for it in range(schedule.icp_iterations):
-            t = it / max(schedule.icp_iterations - 1, 1)
+        for it in range(first_it, last_it):
+            t = it / max(n_icp - 1, 1)
             Vd = D.deformed()
             Nd = vertex_normals(Vd, F)
             sigma = scale * _geometric(schedule.sigma_icp, t)
@@ -1022,7 +1059,7 @@ def register(
                 )
             else:
                 # a refitted tree answers exactly but slows as the source moves: rebuilt every few iterations
-                stree = _search_tree(Vd) if it % _REBUILD_EVERY == 0 else stree.refit(Vd)
+                stree = _search_tree(Vd) if stree is None or it % _REBUILD_EVERY == 0 else stree.refit(Vd)
                 pairs = closest_pairs(
                     Vd, Nd, W, Nt, tree, sigma=sigma, min_cos=schedule.min_cos,
                     source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
@@ -1032,4 +1069,6 @@ def register(
     Vd = D.deformed()
     residual = fit_residual(Vd, F, W, Nt, tree, scale=scale, samples=(src_s, tgt_s), min_cos=schedule.min_cos, cap=cap)
     distortion = float(np.mean(D.link_stretch())) / graph.spacing
+    if last_it < n_icp:
+        return RegistrationResult(Vd, D, residual, distortion, resume_at=last_it, _tree=stree)
     return RegistrationResult(Vd, D, residual, distortion)

@@ -168,6 +168,13 @@ class _Verified:
     """The mesh whose intrinsic data (the spectral hypotheses, the feature stage's local
     features) stand for the source's: the source as it is for a registration of the source
     in a pose (``pose_sources``); ``None``: the source."""
+    resume: Callable[[list[RegistrationResult]], list[Any]] | None = None
+    """With ``race_iterations``, until :func:`_raced`: takes the verifications stopped in
+    the race that go on and returns their whole registrations (futures on a shared pool)."""
+    keep: int = 0
+    """How many go on after the race (``race_keep``)."""
+    kept: IndexArray | None = None
+    """After the race: the verifications that went on (the others stopped early)."""
 
 
 class _Working(NamedTuple):
@@ -195,11 +202,39 @@ class _Spectral:
     orient_ops: dict
 
 
-def _collected(v: _Verified) -> _Verified:
-    """``v`` with its verifications' results (futures when submitted to a shared pool) in hand, and their order."""
+def _raced(v: _Verified) -> _Verified:
+    """``v`` after its race (``race_iterations``): the ``keep`` best of the stopped verifications go on.
+
+    Waits for the stopped verifications; the ones that go on are submitted (to a shared
+    pool, their futures in ``results``) or registered here. Without a race: ``v``.
+    """
+    if v.resume is None:
+        return v
     t0 = time.perf_counter()
     results = [r.result() if isinstance(r, Future) else r for r in v.results]
-    order = np.argsort([r.residual for r in results], kind="stable")
+    kept = np.sort(np.argsort([r.residual for r in results], kind="stable")[: v.keep])
+    resumed = v.resume([results[i] for i in kept])
+    for i, r in zip(kept, resumed):
+        results[i] = r
+    return dataclasses.replace(v, results=results, resume=None, kept=kept, seconds=v.seconds + time.perf_counter() - t0)
+
+
+def _collected(v: _Verified) -> _Verified:
+    """``v`` with its verifications' results (futures when submitted to a shared pool) in hand, and their order.
+
+    The order is by residual, best first; after a race the verifications that went on
+    come first (their residuals are after the whole schedule, the others' after the race).
+    """
+    v = _raced(v)
+    t0 = time.perf_counter()
+    results = [r.result() if isinstance(r, Future) else r for r in v.results]
+    residuals = [r.residual for r in results]
+    if v.kept is None:
+        order = np.argsort(residuals, kind="stable")
+    else:
+        stopped = np.ones(len(results), dtype=bool)
+        stopped[v.kept] = False
+        order = np.lexsort((residuals, stopped))
     return dataclasses.replace(v, results=results, order=order, seconds=v.seconds + time.perf_counter() - t0)
 
 
@@ -1408,6 +1443,18 @@ class DeformMatcher(Matcher):
         with training poses, training pairs (leave-one-out, Dijkstra x100): 1.6901 ->
         1.7310 at 0.94 of the time per pair; kid06's near tie goes to the run that ends
         worse (attempts #144 and #151, ``docs/flagship.md``).
+    race_iterations : int
+        ``0`` (default): every hypothesis is verified through the whole schedule
+        (``coarse_fit_iterations`` + ``coarse_icp_iterations``). Else a race: each
+        hypothesis is registered through the fit and this many closest-point iterations,
+        and only the ``race_keep`` best by their residual there go on through the rest of
+        the schedule, exactly as one uninterrupted registration (``register``'s
+        ``stop_after`` and ``resume``); the others keep their residual at the stop and come
+        after them in the order. Not with ``accept_residual`` (the early exit verifies
+        one hypothesis at a time). Attempts #143 and #177 in ``docs/flagship.md``.
+    race_keep : int
+        How many hypotheses of a registration go on after the race (at least
+        ``n_continue``; with as many as the hypotheses, the race changes nothing).
     """
 
     name = "deform"
@@ -1465,6 +1512,8 @@ class DeformMatcher(Matcher):
         follow_top: int = 0,
         follow_spectral: bool = False,
         follow_bent: bool = False,
+        race_iterations: int = 0,
+        race_keep: int = 6,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1516,6 +1565,8 @@ class DeformMatcher(Matcher):
         self.follow_top = follow_top
         self.follow_spectral = follow_spectral
         self.follow_bent = follow_bent
+        self.race_iterations = race_iterations
+        self.race_keep = race_keep
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches", "follow_spectral", "follow_bent"):
@@ -1605,6 +1656,13 @@ class DeformMatcher(Matcher):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        ri, rk = self.race_iterations, self.race_keep
+        if isinstance(ri, (bool, np.bool_)) or not isinstance(ri, (int, np.integer)) or not 0 <= ri < self.coarse_icp_iterations:
+            raise ValueError(f"race_iterations must be an integer in [0, coarse_icp_iterations), got {ri!r}")
+        if isinstance(rk, (bool, np.bool_)) or not isinstance(rk, (int, np.integer)) or rk < self.n_continue:
+            raise ValueError(f"race_keep must be an integer >= n_continue ({self.n_continue}), got {rk!r}")
+        if ri > 0 and self.accept_residual > 0:
+            raise ValueError("race_iterations needs accept_residual = 0 (the early exit verifies one hypothesis at a time)")
         frame_sets = {"rigid_frames": self.rigid_frames}
         if self.rigid_frames_with_poses is not None:
             frame_sets["rigid_frames_with_poses"] = self.rigid_frames_with_poses
@@ -1747,7 +1805,11 @@ class DeformMatcher(Matcher):
         settings = self._check()
         poses = _checked_poses(source, poses)
         samples, graph, target_basis = self._setup(source, target)
-        return self._verify(source, target, settings, samples, graph, target_basis, poses)
+        hyps, results, resume = self._verify(source, target, settings, samples, graph, target_basis, poses)
+        if resume is not None:  # the race's best go on
+            v = _Verified(source, target, 0, samples, graph, hyps, results, np.empty(0, np.int64), 0.0, resume=resume, keep=int(self.race_keep))
+            results = _collected(v).results
+        return hyps, results
 
     def _verify(
         self,
@@ -1762,8 +1824,11 @@ class DeformMatcher(Matcher):
         pool: ThreadPoolExecutor | None = None,
         intrinsic: TriangleMesh | None = None,
         only: frozenset[str] | None = None,
-    ) -> tuple[list[Hypothesis], list[Any]]:
+    ) -> tuple[list[Hypothesis], list[Any], Callable[[list[RegistrationResult]], list[Any]] | None]:
         """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
+
+        With ``race_iterations`` the verifications stop there, and the third item
+        continues those that go on (see :func:`_raced`); else it is ``None``.
 
         ``memo`` keeps the poses' alignments (:func:`align_poses`) and the shapes'
         spectral data (:func:`spectral_hypotheses`' ``cache``) for the next starts: the
@@ -1808,12 +1873,21 @@ class DeformMatcher(Matcher):
             extrinsic = (h for h in extrinsic if _followed(h.label, only))
             others = (h for h in others if _followed(h.label, only))
 
+        race = int(self.race_iterations) if self.race_iterations > 0 else None
+
         def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
             pairs = DataPairs(h.p2p, W[tv], Nt[tv], np.ones(len(tv)))
-            r = register(source.vertices, source.faces, W, target.faces, pairs, coarse, graph=graph, samples=(s1, s2))
-            logger.debug("%s: residual %.4f distortion %.3f", h.label, r.residual, r.distortion)
+            r = register(source.vertices, source.faces, W, target.faces, pairs, coarse, graph=graph, samples=(s1, s2), stop_after=race)
+            logger.debug("%s: residual %.4f distortion %.3f%s", h.label, r.residual, r.distortion, "" if race is None else f" after {race}")
             return r
+
+        def go_on(r: RegistrationResult) -> RegistrationResult:
+            return register(source.vertices, source.faces, W, target.faces, None, coarse, graph=graph, samples=(s1, s2), resume=r)
+
+        def go_on_here(rs: list[RegistrationResult]) -> list[RegistrationResult]:
+            with one_blas_thread():
+                return self._map(go_on, rs)
 
         if self.accept_residual > 0:
             hyps, results = [], []
@@ -1822,13 +1896,13 @@ class DeformMatcher(Matcher):
                 results.append(verify(h))
                 if results[-1].residual < self.accept_residual:
                     break
-            return hyps, results
+            return hyps, results, None
         n = self._n_threads()
         if n <= 1 and pool is None:
             hyps = list(chain(spectral, extrinsic, others))
             with one_blas_thread():
                 results = self._map(verify, hyps)
-            return hyps, results
+            return hyps, results, None if race is None else go_on_here
         # pipelined: the extrinsic hypotheses (cheap) are verified on the pool while this
         # thread computes the spectral ones (the costly part); the lists keep the order
         # spectral, extrinsic, others. The registrations' small dense solves lose to BLAS
@@ -1843,8 +1917,9 @@ class DeformMatcher(Matcher):
             last = [(h, ex.submit(verify, h)) for h in others]
             done = first + later + last
             if pool is not None:
-                return [h for h, _ in done], [f for _, f in done]
-            return [h for h, _ in done], [f.result() for _, f in done]
+                go_on_pool = None if race is None else (lambda rs: [pool.submit(go_on, r) for r in rs])
+                return [h for h, _ in done], [f for _, f in done], go_on_pool
+            return [h for h, _ in done], [f.result() for _, f in done], None if race is None else go_on_here
 
     def _refine(
         self,
@@ -2120,7 +2195,7 @@ class DeformMatcher(Matcher):
                         plan += [(0, False, i) for i in ranked[:n_posed]]
                     # follow_top: a later start's run waits for start 0's (same poses) and verifies
                     # only its best hypotheses; it is made after the others, in its place in the plan
-                    leaders: dict[bool, _Verified] = {}
+                    leaders: dict[bool, int] = {}  # start 0's run (with or without the poses): its index in submitted
                     followers: list[tuple[int, int, bool]] = []
                     for start, with_poses, posed in plan:
                         key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
@@ -2133,9 +2208,12 @@ class DeformMatcher(Matcher):
                             continue
                         submitted.append(submit(size, start, with_poses, posed, challengers, None, pool))
                         if posed is None and start == 0:
-                            leaders[with_poses] = submitted[-1][0]
+                            leaders[with_poses] = len(submitted) - 1
                     for index, start, with_poses in followers:
-                        lead = _collected(leaders[with_poses])
+                        k_lead = leaders[with_poses]
+                        # collected once, kept in place (a race's best go on only once)
+                        lead = _collected(submitted[k_lead][0])
+                        submitted[k_lead] = (lead, *submitted[k_lead][1:])
                         only = frozenset(lead.hyps[i].label for i in lead.order[: int(self.follow_top)])
                         if self.follow_spectral:  # every spectral setting on the follower's own samples
                             only |= frozenset(_spectral_label(*x) for x in settings)
@@ -2143,6 +2221,8 @@ class DeformMatcher(Matcher):
                             only |= {_BENT + "*"}  # every bent copy of the follower's own
                         submitted[index] = submit(size, start, with_poses, None, challengers, only, pool)
                         submitted[index][1]["followed"] = sorted(only)
+                # every run's race first (its best go on in the pool), then every run's results
+                submitted = [(_raced(v), run, back, home) for v, run, back, home in submitted]
                 submitted = [(_collected(v), run, back, home) for v, run, back, home in submitted]
             out = []
             for v, run, back, home in submitted:
@@ -2291,8 +2371,11 @@ class DeformMatcher(Matcher):
         """
         t0 = time.perf_counter()
         samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic, only)
-        return _Verified(source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic)
+        hyps, results, resume = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic, only)
+        return _Verified(
+            source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic,
+            resume=resume, keep=int(self.race_keep),
+        )
 
     def _refined(self, v: _Verified, features: bool = True) -> tuple[FloatArray, dict[str, Any]]:
         """Steps 3-6 of a verified registration (``features=False``: without the feature stage): the deformed source and the diagnostics."""
