@@ -322,8 +322,9 @@ class TemplateMatcher(Matcher):
         posed source scored 2.04, one start and the posed source 2.08, two starts
         with the poses alone 2.30, one start 2.37, five starts without them 2.36
         (attempts #86, #90, ``docs/flagship.md``). ``{"pose_sources": 0}`` gives
-        session 29's setting; ``{"n_starts": 1}`` takes about 12 % less time per pair
-        (training 1.7458 against 1.6901, attempt #141). Through
+        session 29's setting; ``{"n_starts": 1}`` takes about 13 % less time per pair
+        (training 1.7458 against 1.6901, attempts #141, #174) and loses two built-in maps
+        (syn05, syn07) and some contact stand-ins (#176). Through
         working copies (high res) the template as it is is registered at the smallest
         copy size only and the posed one at every size (``start_sizes``, attempt #91:
         the six high-res training pairs' maps unchanged at 41.5 s per pair instead of
