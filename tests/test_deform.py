@@ -136,6 +136,8 @@ def test_registration_stopped_and_resumed_equals_one_call(pair, stop):
         register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=g, samples=smp, resume=whole)
     with pytest.raises(ValueError, match="stop_after must be an integer"):
         register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp, stop_after=9)
+    with pytest.raises(ValueError, match="already been resumed"):
+        register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=g, samples=smp, resume=part)
 
 
 def test_position_step_reuses_the_last_factor_as_preconditioner(pair, monkeypatch):

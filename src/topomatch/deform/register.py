@@ -984,7 +984,7 @@ def register(
     Nt = vertex_normals(W, np.asarray(target_faces, dtype=np.int64))
     scale = float(np.sqrt(face_areas(V, F).sum()))
     n_icp = schedule.icp_iterations
-    if stop_after is not None and not (isinstance(stop_after, (int, np.integer)) and 0 <= stop_after <= n_icp):
+    if stop_after is not None and (isinstance(stop_after, (bool, np.bool_)) or not isinstance(stop_after, (int, np.integer)) or not 0 <= stop_after <= n_icp):
         raise ValueError(f"register: stop_after must be an integer in [0, {n_icp}] (the schedule's closest-point iterations), got {stop_after!r}")
     first_it = 0
     if resume is not None:
