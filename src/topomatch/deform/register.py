@@ -987,20 +987,20 @@ def register(
     if stop_after is not None and (isinstance(stop_after, (bool, np.bool_)) or not isinstance(stop_after, (int, np.integer)) or not 0 <= stop_after <= n_icp):
         raise ValueError(f"register: stop_after must be an integer in [0, {n_icp}] (the schedule's closest-point iterations), got {stop_after!r}")
     first_it = 0
-    if resume is not None:
+    if resume is not None:  # the stopped registration's state goes on (init_pairs and start were used by it)
         if resume.resume_at is None:
             raise ValueError("register: resume must be the result of a call with stop_after")
         if resume._consumed:
             raise ValueError("register: this stopped registration has already been resumed (its state goes on only once)")
-        resume._consumed = True
         D = resume.deformation
         if D.vertices.shape != V.shape or (graph is not None and D.graph is not graph):
             raise ValueError("register: resume comes from a registration of another source or graph")
+        resume._consumed = True
         graph = D.graph
         first_it = int(resume.resume_at)
-    elif graph is None:
-        graph = build_deformation_graph(V, F, schedule.n_nodes)
-    if resume is None:
+    else:
+        if graph is None:
+            graph = build_deformation_graph(V, F, schedule.n_nodes)
         D = GraphDeformation(V, F, graph)
         if start is not None:
             cur = start.deformed() if isinstance(start, GraphDeformation) else np.asarray(start, dtype=np.float64)
@@ -1036,7 +1036,7 @@ def register(
         raise ValueError("register: stop_after and resume are for registrations without features")
     joint: tuple[float, FloatArray, JointTree] | None = None  # (weight, target's joint points, their tree)
     jtree: JointTree | None = None  # on the deformed source's joint points
-    last_it = n_icp if stop_after is None else min(n_icp, max(int(stop_after), first_it))
+    last_it = n_icp if stop_after is None else max(int(stop_after), first_it)
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(first_it, last_it):
             t = it / max(n_icp - 1, 1)

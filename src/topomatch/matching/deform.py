@@ -1809,9 +1809,8 @@ class DeformMatcher(Matcher):
         poses = _checked_poses(source, poses)
         samples, graph, target_basis = self._setup(source, target)
         hyps, results, resume = self._verify(source, target, settings, samples, graph, target_basis, poses)
-        if resume is not None:  # the race's best go on
-            v = _Verified(source, target, 0, samples, graph, hyps, results, np.empty(0, np.int64), 0.0, resume=resume, keep=int(self.race_keep))
-            results = _collected(v).results
+        if resume is not None:  # the race's best go on (here: the results are in hand)
+            results = _raced(_Verified(source, target, 0, samples, graph, hyps, results, np.empty(0, np.int64), 0.0, resume=resume, keep=int(self.race_keep))).results
         return hyps, results
 
     def _verify(
@@ -1892,6 +1891,8 @@ class DeformMatcher(Matcher):
             with one_blas_thread():
                 return self._map(go_on, rs)
 
+        here = None if race is None else go_on_here
+
         if self.accept_residual > 0:
             hyps, results = [], []
             for h in chain(spectral, extrinsic, others):
@@ -1905,7 +1906,7 @@ class DeformMatcher(Matcher):
             hyps = list(chain(spectral, extrinsic, others))
             with one_blas_thread():
                 results = self._map(verify, hyps)
-            return hyps, results, None if race is None else go_on_here
+            return hyps, results, here
         # pipelined: the extrinsic hypotheses (cheap) are verified on the pool while this
         # thread computes the spectral ones (the costly part); the lists keep the order
         # spectral, extrinsic, others. The registrations' small dense solves lose to BLAS
@@ -1922,7 +1923,7 @@ class DeformMatcher(Matcher):
             if pool is not None:
                 go_on_pool = None if race is None else (lambda rs: [pool.submit(go_on, r) for r in rs])
                 return [h for h, _ in done], [f for _, f in done], go_on_pool
-            return [h for h, _ in done], [f.result() for _, f in done], None if race is None else go_on_here
+            return [h for h, _ in done], [f.result() for _, f in done], here
 
     def _refine(
         self,
