@@ -140,6 +140,55 @@ def test_registration_stopped_and_resumed_equals_one_call(pair, stop):
         register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=g, samples=smp, resume=part)
 
 
+def test_turned_normals_follow_the_nodes_rotations(pair):
+    from topomatch.deform.register import GraphDeformation
+
+    src, _, _ = pair
+    g = build_deformation_graph(src.vertices, src.faces, 80)
+    D = GraphDeformation(src.vertices, src.faces, g)
+    some = np.arange(0, src.n_vertices, 7)
+    n0 = src.vertex_normals
+    np.testing.assert_allclose(D.turned_normals(n0, some), n0[some], atol=1e-14)
+    # one rotation for every node: every normal turned by it (the translations play no part)
+    R = axis_rotation(np.array([0.3, -1.0, 0.5]), 0.8)
+    D.rotations[:] = R
+    D.positions += 5.0
+    np.testing.assert_allclose(D.turned_normals(n0, some), n0[some] @ R.T, atol=1e-12)
+    # two nodes' rotations blend: a vertex between them gets the normalised blend
+    assert np.allclose(np.linalg.norm(D.turned_normals(n0, some), axis=1), 1.0)
+
+
+def test_registration_on_a_surface_subset(pair):
+    # register's surface: the closest-point iterations deform and search a subset of the
+    # source's vertices (with turned rest normals); close to the registration on every vertex
+    src, tgt, perm = pair
+    g = build_deformation_graph(src.vertices, src.faces, 80)
+    smp = (farthest_point_sampling(300, points=src.vertices, first=0), farthest_point_sampling(300, points=tgt.vertices))
+    surface = np.union1d(farthest_point_sampling(900, points=src.vertices, first=0), smp[0])
+    assert len(surface) == 900  # the farthest points from the same start hold the samples
+    pts = np.arange(0, src.n_vertices, 30)
+    exact = np.empty_like(src.vertices)
+    exact[perm] = tgt.vertices
+    pairs = DataPairs(pts, exact[pts], tgt.vertex_normals[np.argsort(perm)][pts], np.ones(len(pts)))
+    sched = RegistrationSchedule(n_nodes=80, fit_iterations=3, icp_iterations=8)
+    every = register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp)
+    some = register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp, surface=surface)
+    assert not np.array_equal(some.deformed, every.deformed)
+    assert some.residual < 1.2 * every.residual + 1e-3
+    assert np.linalg.norm(some.deformed - exact, axis=1).mean() < 0.05 * np.sqrt(src.area)
+    # stopped and resumed on the subset: bit for bit as one call
+    part = register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp, surface=surface, stop_after=4)
+    done = register(src.vertices, src.faces, tgt.vertices, tgt.faces, None, sched, graph=g, samples=smp, surface=surface, resume=part)
+    assert np.array_equal(done.deformed, some.deformed) and done.residual == some.residual
+    # bad subsets are named
+    for bad, match in ((surface[::-1], "sorted"), (surface[1:], "every source sample"), (np.r_[surface, src.n_vertices], r"\[0, "),
+                       (surface.astype(float), "vertex indices"), (np.array([], dtype=int), "non-empty")):
+        with pytest.raises(ValueError, match=match):
+            register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, samples=smp, surface=bad)
+    with pytest.raises(ValueError, match="needs the source samples"):
+        register(src.vertices, src.faces, tgt.vertices, tgt.faces, pairs, sched, graph=g, surface=surface)
+
+
 def test_position_step_reuses_the_last_factor_as_preconditioner(pair, monkeypatch):
     # a graph large enough for the sparse path: the warm-started conjugate gradients give
     # the registration the direct solves give (every step factorised afresh)
@@ -362,6 +411,50 @@ def test_deform_race_changes_nothing_when_every_hypothesis_goes_on(pair, n_threa
     c = raced.match(src, tgt)
     assert c.p2p_21.shape == (tgt.n_vertices,)
     assert set(c.info["continued"]) <= {h.label for h, w in zip(hyps, whole) if w} or c.info["run"] != 0
+
+
+def test_deform_surface_vertices(pair):
+    # the coarse registrations on the samples and farthest points: a valid map, and the
+    # whole surface (as many vertices as the source has) is not the default's path
+    src, tgt, perm = pair
+    kw = {"hypotheses": (("hks", 30, False),), "n_samples": 400, "coarse_nodes": 60, "fine_nodes": 150, "coarse_icp_iterations": 8,
+          "fine_icp_iterations": 6, "limb_rounds": 1, "n_threads": 1}
+    base = make_matcher("deform", **kw).match(src, tgt)
+    some = make_matcher("deform", surface_vertices=1200, **kw).match(src, tgt)
+    err0, err = (np.linalg.norm(src.vertices[c.p2p_21] - src.vertices[perm], axis=1).mean() / np.sqrt(src.area) for c in (base, some))
+    assert err < max(1.5 * err0, 0.05)
+    m = make_matcher("deform", surface_vertices=1200, **kw)
+    s1 = m._samples(src, 0)
+    first = m._surface(src, s1)
+    assert first is m._surface(src, s1) and np.all(np.isin(s1, first)) and len(first) == 1200
+    assert make_matcher("deform", **kw)._surface(src, s1) is None
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="surface_vertices"):
+            make_matcher("deform", surface_vertices=bad, **kw).match(src, tgt)
+
+
+def test_deform_feature_gate(pair):
+    # a gate no fine-stage lead passes changes nothing; one every lead passes is the
+    # feature stage after the choice (no challengers here)
+    src, tgt, _ = pair
+    kw = {"hypotheses": (("hks", 30, False),), "n_samples": 400, "coarse_nodes": 60, "fine_nodes": 150, "coarse_icp_iterations": 8,
+          "fine_icp_iterations": 6, "feature_icp_iterations": 6, "limb_rounds": 0, "n_threads": 2, "n_starts": 2, "refine_runs": 2}
+    base = make_matcher("deform", **kw).match(src, tgt)
+    closed = make_matcher("deform", feature_gate=1e9, **kw).match(src, tgt)
+    np.testing.assert_array_equal(closed.p2p_21, base.p2p_21)
+    assert closed.info["feature_gate"]["passed"] is False and "feature_gate" not in base.info
+    assert [r["score"] for r in closed.info["runs"]] == [r["score"] for r in base.info["runs"]]
+    open_ = make_matcher("deform", feature_gate=1e-12, **kw).match(src, tgt)
+    after = make_matcher("deform", features_after_choice=True, **kw).match(src, tgt)
+    np.testing.assert_array_equal(open_.p2p_21, after.p2p_21)
+    gate = open_.info["feature_gate"]
+    assert gate["passed"] is True and gate["margin"] > 0
+    # only the kept run had the feature stage: the other keeps its fine-stage score
+    assert sum("fine_score" in r for r in open_.info["runs"]) == 1
+    for bad, match in (({"feature_gate": -0.1}, "feature_gate"), ({"feature_gate": True}, "feature_gate"),
+                       ({"feature_gate": 0.05, "features_after_choice": True}, "cannot be combined")):
+        with pytest.raises(ValueError, match=match):
+            make_matcher("deform", **{**kw, **bad}).match(src, tgt)
 
 
 def test_deform_race_rejects_bad_settings(pair):

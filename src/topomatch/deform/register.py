@@ -457,6 +457,7 @@ class GraphDeformation:
         self._dir_b = np.r_[links[:, 1], links[:, 0]]
         self._dir_rest = self.graph.rest[self._dir_b] - self.graph.rest[self._dir_a]
         self._pattern = _gram_pattern(self.graph, self._skin)
+        self._zero_rest = np.zeros_like(self.graph.rest)
         self._lg: FloatArray | None = None
         self._lg_scale: FloatArray | None = None
         self._last = _LastFactor()
@@ -484,6 +485,27 @@ class GraphDeformation:
     def deformed(self) -> FloatArray:
         """Deformed source vertices, shape (n, 3)."""
         return self._skinned(None, with_positions=True)
+
+    def turned_normals(self, normals: FloatArray, subset: IndexArray) -> FloatArray:
+        """Rest normals turned by each vertex's blended rotation, ``n_i = normalise(sum_q w_iq R_q n0_i)``, shape (len(subset), 3).
+
+        The normals of vertices deformed without their neighbours (:func:`register`'s
+        ``surface``), where the deformed mesh's own normals cannot be formed.
+
+        Parameters
+        ----------
+        normals : ndarray, shape (n, 3)
+            Unit vertex normals of the rest shape.
+        subset : ndarray, shape (s,)
+            The vertices wanted.
+        """
+        rows = np.ascontiguousarray(subset, dtype=np.int64)
+        out = np.empty((len(rows), 3))
+        S = self._skin
+        # sum_q w_iq R_q (n0_i - 0): the skinning of the normals about the origin, without translations
+        skinned_vertices(self.rotations, self._zero_rest, S.indptr, S.indices, S.data, normals, rows, False, self.positions, False, out)
+        length = np.linalg.norm(out, axis=1, keepdims=True)
+        return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
 
     def deformed_normals(self, deformed: FloatArray | None = None) -> FloatArray:
         """Compute unit vertex normals of the deformed source, shape (n, 3)."""
@@ -915,6 +937,22 @@ def _checked_features(
     return f1, f2
 
 
+def _checked_surface(surface: IndexArray, samples: IndexArray | None, n: int) -> IndexArray:
+    """``register``'s ``surface`` as sorted int64 indices, checked: within the source, holding its samples."""
+    out = np.asarray(surface)
+    if out.ndim != 1 or out.dtype.kind not in "iu" or len(out) == 0:
+        raise ValueError(f"register: surface must be a non-empty 1-d array of vertex indices, got shape {out.shape} and dtype {out.dtype}")
+    out = out.astype(np.int64, copy=False)
+    if out[0] < 0 or out[-1] >= n or np.any(np.diff(out) <= 0):
+        raise ValueError(f"register: surface must be sorted, distinct vertex indices in [0, {n})")
+    if samples is None:
+        raise ValueError("register: surface needs the source samples (samples or schedule.n_samples)")
+    at = np.minimum(np.searchsorted(out, samples), len(out) - 1)
+    if not np.array_equal(out[at], samples):
+        raise ValueError("register: surface must hold every source sample")
+    return out
+
+
 def register(
     source_vertices: FloatArray,
     source_faces: IndexArray,
@@ -931,6 +969,7 @@ def register(
     features: tuple[FloatArray, FloatArray] | None = None,
     stop_after: int | None = None,
     resume: RegistrationResult | None = None,
+    surface: IndexArray | None = None,
 ) -> RegistrationResult:
     """Deform the source onto the target: correspondence fit, then closest-point ICP.
 
@@ -969,6 +1008,14 @@ def register(
         (``init_pairs`` and ``start`` are then ignored): the schedule goes on from
         ``resume.resume_at`` and the result is the one a call without ``stop_after``
         gives, bit for bit. The state of ``resume.deformation`` is consumed.
+    surface : ndarray of int, optional
+        The source vertices the closest-point iterations deform and search, shape (s,),
+        sorted, holding the source samples (which are needed): the backward search pairs
+        each target sample with the nearest compatible of these alone, and their normals
+        are the rest normals turned by each vertex's blended rotation
+        (:meth:`GraphDeformation.turned_normals`). Spares the skinning, normals and search
+        tree of the other vertices in every iteration. The fitting phase and the residual
+        use every vertex. ``None``: every vertex, with the deformed mesh's normals.
 
     Returns
     -------
@@ -1029,19 +1076,29 @@ def register(
     elif schedule.n_samples is not None:
         src_s = farthest_point_sampling(min(schedule.n_samples, len(V)), points=V, first=0)
         tgt_s = farthest_point_sampling(min(schedule.n_samples, len(W)), points=W, first=0)
+    src_local = src_s
+    rest_normals: FloatArray | None = None
+    if surface is not None:
+        surface = _checked_surface(surface, src_s, len(V))
+        src_local = np.searchsorted(surface, src_s)
+        rest_normals = vertex_normals(V, F)
     tree = _search_tree(W)
-    stree: PointTree | None = None if resume is None else resume._tree  # on the deformed source
+    stree: PointTree | None = None if resume is None else resume._tree  # on the deformed source (its surface)
     feats = _checked_features(schedule, features, len(V), len(W))
-    if feats is not None and (stop_after is not None or resume is not None):
-        raise ValueError("register: stop_after and resume are for registrations without features")
+    if feats is not None and (stop_after is not None or resume is not None or surface is not None):
+        raise ValueError("register: stop_after, resume and surface are for registrations without features")
     joint: tuple[float, FloatArray, JointTree] | None = None  # (weight, target's joint points, their tree)
     jtree: JointTree | None = None  # on the deformed source's joint points
     last_it = n_icp if stop_after is None else max(int(stop_after), first_it)
     with ThreadPoolExecutor(max_workers=1) if n_threads > 1 else contextlib.nullcontext() as pool:
         for it in range(first_it, last_it):
             t = it / max(n_icp - 1, 1)
-            Vd = D.deformed()
-            Nd = vertex_normals(Vd, F)
+            if surface is None:
+                Vd = D.deformed()
+                Nd = vertex_normals(Vd, F)
+            else:
+                Vd = D._skinned(surface, with_positions=True)
+                Nd = D.turned_normals(rest_normals, surface)
             sigma = scale * _geometric(schedule.sigma_icp, t)
             if feats is not None:
                 w = scale * (schedule.feature_weight[0] + (schedule.feature_weight[1] - schedule.feature_weight[0]) * t)
@@ -1062,8 +1119,10 @@ def register(
                 stree = _search_tree(Vd) if stree is None or it % _REBUILD_EVERY == 0 else stree.refit(Vd)
                 pairs = closest_pairs(
                     Vd, Nd, W, Nt, tree, sigma=sigma, min_cos=schedule.min_cos,
-                    source_subset=src_s, target_subset=tgt_s, pool=pool, source_tree=stree,
+                    source_subset=src_local, target_subset=tgt_s, pool=pool, source_tree=stree,
                 )
+                if surface is not None:  # the surface's own indices back to the source's
+                    pairs = DataPairs(surface[pairs.source], pairs.points, pairs.normals, pairs.weights)
             D.update_rotations(pairs)
             D.update_positions(pairs, alpha=_geometric(schedule.alpha_icp, t), mu_point=schedule.mu_point, mu_plane=schedule.mu_plane)
     Vd = D.deformed()

@@ -1457,6 +1457,24 @@ class DeformMatcher(Matcher):
     race_keep : int
         How many hypotheses of a registration go on after the race (at least
         ``n_continue``; with as many as the hypotheses, the race changes nothing).
+    surface_vertices : int
+        ``0`` (default): the coarse registrations (verification, continuation, limb turns)
+        deform every source vertex in each closest-point iteration. Else they deform and
+        search only the source's samples and its first ``surface_vertices`` farthest-point
+        vertices from the same start (``register``'s ``surface``): the backward search
+        pairs each target sample with the nearest of these, whose normals are the rest
+        normals turned by the deformation. Attempt #180 in ``docs/flagship.md``.
+    feature_gate : float
+        ``0`` (default): every refined run gets the final stage with local features and the
+        choice among them is made after it. Else each refined run stops after its fine
+        registration; when the best fine-stage score leads the next by at least this share
+        of it, only that run gets the feature stage and is the choice; otherwise every
+        refined run gets it and the choice is made after it, as by default. The
+        challengers' gate and judgement (``pose_challengers``) read the final maps: when
+        the challengers are registered, every refined run gets its feature stage first.
+        Not with ``features_after_choice`` (a gate that always passes, with the
+        challengers judged on fine-stage maps) nor ``orientation_weight``. Attempts #179
+        and #181 in ``docs/flagship.md``.
     """
 
     name = "deform"
@@ -1516,6 +1534,8 @@ class DeformMatcher(Matcher):
         follow_bent: bool = False,
         race_iterations: int = 0,
         race_keep: int = 6,
+        surface_vertices: int = 0,
+        feature_gate: float = 0.0,
     ) -> None:
         self.hypotheses = hypotheses
         self.accept_residual = accept_residual
@@ -1569,6 +1589,8 @@ class DeformMatcher(Matcher):
         self.follow_bent = follow_bent
         self.race_iterations = race_iterations
         self.race_keep = race_keep
+        self.surface_vertices = surface_vertices
+        self.feature_gate = feature_gate
 
     def _check(self) -> list[tuple[str, int, bool]]:
         for flag in ("background_eigenbasis", "fill_patches", "follow_spectral", "follow_bent"):
@@ -1658,6 +1680,14 @@ class DeformMatcher(Matcher):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        fg = self.feature_gate
+        if isinstance(fg, (bool, np.bool_)) or not isinstance(fg, (int, float, np.integer, np.floating)) or not fg >= 0:
+            raise ValueError(f"feature_gate must be a number >= 0, got {fg!r}")
+        if fg > 0 and (self.features_after_choice or self.orientation_weight > 0):
+            raise ValueError("feature_gate cannot be combined with features_after_choice or orientation_weight")
+        sv = self.surface_vertices
+        if isinstance(sv, (bool, np.bool_)) or not isinstance(sv, (int, np.integer)) or sv < 0:
+            raise ValueError(f"surface_vertices must be an integer >= 0, got {sv!r}")
         ri, rk = self.race_iterations, self.race_keep
         if isinstance(ri, (bool, np.bool_)) or not isinstance(ri, (int, np.integer)) or not 0 <= ri < self.coarse_icp_iterations:
             raise ValueError(f"race_iterations must be an integer in [0, coarse_icp_iterations), got {ri!r}")
@@ -1741,6 +1771,27 @@ class DeformMatcher(Matcher):
         """Start ``start``'s farthest-point samples of ``mesh`` (:func:`_start_vertex`): at most ``n_samples``."""
         first = _start_vertex(mesh.n_vertices, start, self.n_starts)
         return farthest_point_sampling(min(self.n_samples, mesh.n_vertices), points=mesh.vertices, first=first)
+
+    def _surface(self, source: TriangleMesh, samples: IndexArray) -> IndexArray | None:
+        """The coarse registrations' ``surface`` (``surface_vertices``) for the source samples ``samples`` of :meth:`_samples`, sorted; ``None`` when off.
+
+        Kept for the samples' array it was made for (the same samples serve a run's
+        verification, continuation and limb turns).
+        """
+        n = int(self.surface_vertices)
+        if n <= 0:
+            return None
+        memo = self.__dict__.setdefault("_surfaces", {})
+        key = (id(samples), n)
+        hit = memo.get(key)
+        if hit is not None and hit[0] is samples and hit[1] is source.vertices:
+            return hit[2]
+        first = farthest_point_sampling(min(n, source.n_vertices), points=source.vertices, first=int(samples[0]))
+        surface = np.union1d(first, samples)
+        if len(memo) >= 64:
+            memo.clear()
+        memo[key] = (samples, source.vertices, surface)
+        return surface
 
     def _has_pose_hypotheses(self, poses: Sequence[tuple[str, FloatArray]]) -> bool:
         """Whether a registration given ``poses`` verifies pose hypotheses (:meth:`_pose_hypotheses`)."""
@@ -1876,16 +1927,17 @@ class DeformMatcher(Matcher):
             others = (h for h in others if _followed(h.label, only))
 
         race = int(self.race_iterations) if self.race_iterations > 0 else None
+        surface = self._surface(source, s1)
 
         def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
             pairs = DataPairs(h.p2p, W[tv], Nt[tv], np.ones(len(tv)))
-            r = register(source.vertices, source.faces, W, target.faces, pairs, coarse, graph=graph, samples=(s1, s2), stop_after=race)
+            r = register(source.vertices, source.faces, W, target.faces, pairs, coarse, graph=graph, samples=(s1, s2), stop_after=race, surface=surface)
             logger.debug("%s: residual %.4f distortion %.3f%s", h.label, r.residual, r.distortion, "" if race is None else f" after {race}")
             return r
 
         def go_on(r: RegistrationResult) -> RegistrationResult:
-            return register(source.vertices, source.faces, W, target.faces, None, coarse, graph=graph, samples=(s1, s2), resume=r)
+            return register(source.vertices, source.faces, W, target.faces, None, coarse, graph=graph, samples=(s1, s2), resume=r, surface=surface)
 
         def go_on_here(rs: list[RegistrationResult]) -> list[RegistrationResult]:
             with one_blas_thread():
@@ -1955,6 +2007,7 @@ class DeformMatcher(Matcher):
             starts[int(order[0])] = assembled
             swaps = [(hyps[order[h]].label, nv) for h, nv in sw]
         i_best = int(order[0])
+        surface = self._surface(source, samples[0])
         continued: dict[str, tuple[float, float]] = {}
         if self.continue_icp_iterations > 0:
             cont = RegistrationSchedule(
@@ -1963,7 +2016,7 @@ class DeformMatcher(Matcher):
             )
 
             def go(i: int) -> RegistrationResult:
-                return register(source.vertices, source.faces, W, target.faces, None, cont, graph=graph, start=starts[i], samples=samples)
+                return register(source.vertices, source.faces, W, target.faces, None, cont, graph=graph, start=starts[i], samples=samples, surface=surface)
 
             ids = list(starts)
             runs = self._map(go, ids)
@@ -2031,12 +2084,13 @@ class DeformMatcher(Matcher):
         def fine_registration(X: FloatArray) -> RegistrationResult:
             return register(source.vertices, source.faces, target.vertices, target.faces, None, fine_schedule, graph=fine_graph, start=X)
 
+        surface = self._surface(source, samples[0])
         fine_now: RegistrationResult | None = None  # the fine registration of starts[i_best]
         parts = source_limbs(graph) if self.limb_rounds > 0 else []
         by_fine = self.limb_judge == "fine"
 
         def continued(X: FloatArray) -> tuple[RegistrationResult, RegistrationResult | None]:
-            r = register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=X, samples=samples)
+            r = register(source.vertices, source.faces, target.vertices, target.faces, None, cont, graph=graph, start=X, samples=samples, surface=surface)
             return r, (fine_registration(r.deformed) if by_fine else None)
 
         for _ in range(self.limb_rounds):
@@ -2245,10 +2299,13 @@ class DeformMatcher(Matcher):
         # features_after_choice: the runs are refined up to the fine registration and compared
         # there; their vertices on the working copies wait here for the kept run's feature stage
         after = self.features_after_choice and self._has_feature_stage()
+        # feature_gate: the same, but every refined run gets the feature stage unless the
+        # fine-stage leader leads clearly (and before the challengers are judged)
+        gated = self.feature_gate > 0 and self._has_feature_stage()
         before_features: dict[int, FloatArray] = {}
 
-        def refine(ks: list[int]) -> None:
-            """Refine the runs ``pending[k]`` into ``finished[k]`` (their score, the source's vertices, the info)."""
+        def refine(ks: list[int], features: bool) -> None:
+            """Refine the runs ``pending[k]`` into ``finished[k]`` (their score, the source's vertices, the info); ``features=False``: up to the fine registration."""
             t2 = time.perf_counter()
             if self._n_threads() > 1 and len(ks) > 1:
                 # side by side, one thread each (a refinement's result does not depend on its threads;
@@ -2256,11 +2313,11 @@ class DeformMatcher(Matcher):
                 solo = copy.copy(self)
                 solo.n_threads = 1
                 with one_blas_thread():
-                    refined = _thread_map(lambda k: solo._refined(pending[k][0], features=not after), ks, self._n_threads())
+                    refined = _thread_map(lambda k: solo._refined(pending[k][0], features=features), ks, self._n_threads())
             else:
-                refined = [self._refined(pending[k][0], features=not after) for k in ks]
+                refined = [self._refined(pending[k][0], features=features) for k in ks]
             for k, (deformed, info) in zip(ks, refined):
-                if after:
+                if not features:
                     before_features[k] = deformed
                 v, run, back, home = pending[k]
                 if run["source_pose"] is not None:
@@ -2274,22 +2331,37 @@ class DeformMatcher(Matcher):
                 finished[k] = (run["score"], deformed, info)
             seconds["refinement"] += time.perf_counter() - t2
 
-        def add_features(k: int) -> None:
-            """The feature stage for the refined run ``k`` alone (``features_after_choice``): ``finished[k]`` updated."""
+        def add_features(ks: list[int]) -> None:
+            """The feature stage for the refined runs ``ks`` that have not had it (``features_after_choice``, ``feature_gate``), side by side: ``finished`` updated."""
+            ks = [k for k in ks if k in before_features]
+            if not ks:
+                return
             t3 = time.perf_counter()
-            v, run, back, home = pending[k]
-            # the run's fine graph built again (the same graph, about 45 ms once per shape) rather than
-            # carried out of every refinement for the one run that is kept
+
+            def stage(solo: DeformMatcher, k: int) -> RegistrationResult:
+                v = pending[k][0]
+                # the run's fine graph built again (the same graph, about 45 ms once per shape) rather than
+                # carried out of every refinement for the one run that is kept
+                return solo._feature_stage(v.source, v.target, solo._fine_graph(v.source, v.start), before_features[k], v.intrinsic)
+
             with one_blas_thread():
-                r = self._feature_stage(v.source, v.target, self._fine_graph(v.source, v.start), before_features[k], v.intrinsic)
-            deformed, residual = carried(r.deformed, v, back, home)
-            info = finished[k][2]
-            run.update(fine_score=run["score"], full_residual=residual, score=residual + self.distortion_weight * float(r.distortion))
-            info.update(residual=r.residual, distortion=r.distortion, features_after_choice=True)
-            dt = time.perf_counter() - t3
-            info["seconds"]["refinement"] += dt
-            seconds["refinement"] += dt
-            finished[k] = (run["score"], deformed, info)
+                if self._n_threads() > 1 and len(ks) > 1:  # as refine: one thread each, the same results
+                    solo = copy.copy(self)
+                    solo.n_threads = 1
+                    rs = _thread_map(partial(stage, solo), ks, self._n_threads())
+                else:
+                    rs = [stage(self, k) for k in ks]
+            dt = (time.perf_counter() - t3) / len(ks)
+            for k, r in zip(ks, rs):
+                del before_features[k]
+                v, run, back, home = pending[k]
+                deformed, residual = carried(r.deformed, v, back, home)
+                info = finished[k][2]
+                run.update(fine_score=run["score"], full_residual=residual, score=residual + self.distortion_weight * float(r.distortion))
+                info.update(residual=r.residual, distortion=r.distortion, features_after_choice=True)
+                info["seconds"]["refinement"] += dt
+                finished[k] = (run["score"], deformed, info)
+            seconds["refinement"] += time.perf_counter() - t3
 
         folded: dict[int, float] = {}
 
@@ -2307,11 +2379,20 @@ class DeformMatcher(Matcher):
         n_refine = len(pending) if self.refine_runs is None else min(int(self.refine_runs), len(pending))
         # in plan order: equal scores go to the smaller copy, the earlier start
         chosen = sorted(int(i) for i in np.argsort([run["verified_score"] for _, run, _, _ in pending], kind="stable")[:n_refine])
-        refine(chosen)
+        refine(chosen, features=not (after or gated))
+        gate: dict[str, Any] | None = None
+        if gated:
+            fine_keys = sorted(finished[k][0] for k in chosen)
+            lead = chosen[int(np.argmin([finished[k][0] for k in chosen]))]
+            margin = (fine_keys[1] - fine_keys[0]) / fine_keys[0] if len(chosen) > 1 and fine_keys[0] > 0 else float("inf")
+            gate = {"margin": margin, "above": float(self.feature_gate), "passed": margin >= self.feature_gate}
+            add_features([lead] if gate["passed"] else chosen)
         # the choice among the refined runs: by score, or by fit and folding (#135)
         if self.orientation_weight > 0 and len(chosen) > 1:
             fold(chosen)
             keys = [float(pending[k][1]["full_residual"]) + float(self.orientation_weight) * folded[k] for k in chosen]
+        elif gate is not None and gate["passed"]:  # the others' fine-stage scores do not compete
+            keys = [0.0 if k == lead else np.inf for k in chosen]
         else:
             keys = [finished[k][0] for k in chosen]
         k_best = chosen[int(np.argmin(keys))]  # the first of equals
@@ -2320,12 +2401,15 @@ class DeformMatcher(Matcher):
             # challengers (#136): registered only when the choice's map turns over at least
             # challenge_above of the target; then a refined run whose map turns over clearly
             # less (challenge_margin) replaces the choice, or (#139) the lowest score of all
-            fold(chosen)
+            fold([k_best])
             challenge = {"folded": folded[k_best], "above": float(self.challenge_above), "registered": folded[k_best] >= self.challenge_above}
+            if challenge["registered"] and gated:  # every refined run is judged on its final map
+                add_features(chosen)
+            fold(chosen)
             if challenge["registered"]:
                 first = len(pending)
                 pending += verify(challengers=True)
-                refine(list(range(first, len(pending))))
+                refine(list(range(first, len(pending))), features=not after)
                 fold(list(range(first, len(pending))))
             if self.challenge_judge == "score":
                 k_new = min(finished, key=lambda k: (finished[k][0], k)) if challenge["registered"] else k_best
@@ -2335,12 +2419,14 @@ class DeformMatcher(Matcher):
             if k_new != k_best:
                 challenge["replaced"] = {"chosen": k_best, "by": k_new}
                 k_best = k_new
-        if after:
-            add_features(k_best)
+        if after or gated:  # (a gated run may have had it)
+            add_features([k_best])
         _, deformed, info = finished[k_best]
         info["runs"] = [run for _, run, _, _ in pending]
         if challenge is not None:
             info["challenge"] = challenge
+        if gate is not None:
+            info["feature_gate"] = gate
         info["seconds"] = seconds
         return deformed, info
 

@@ -288,10 +288,11 @@ def mirrored_pose(vertices: FloatArray, sym: IndexArray) -> FloatArray:
 
 
 def _runs_record(info: dict[str, Any]) -> dict[str, Any]:
-    """A registration's runs as ``template`` reports them: the run kept, every run, the challenge if any."""
+    """A registration's runs as ``template`` reports them: the run kept, every run, the challenge and the feature stage's gate if any."""
     record = {"kept": info["run"], "runs": info["runs"]}
-    if "challenge" in info:
-        record["challenge"] = info["challenge"]
+    for key in ("challenge", "feature_gate"):
+        if key in info:
+            record[key] = info[key]
     return record
 
 
