@@ -25,6 +25,7 @@ from topomatch.matching.template import (
     POSED_STARTS,
     QUICK,
     REFINED_RUNS,
+    RIGID_FRAMES_WITH_POSES,
     compose_through_template,
     mirrored_pose,
     pose_from_ground_truth,
@@ -107,7 +108,8 @@ def test_template_is_deform_when_the_source_is_the_template(fitted, builtin):
     assert [name for name, _, _ in fitted.poses_] == fitted.training_shapes_[1:] == builtin.splits["train"]
     params = {**ACCURATE, "feature_icp_iterations": FEATURE_ITERATIONS, **FAST, "pose_sources": POSE_SOURCES, "refine_runs": REFINED_RUNS,
               "pose_challengers": POSE_CHALLENGERS, "challenge_judge": CHALLENGE_JUDGE, "challenge_above": CHALLENGE_ABOVE,
-              "follow_top": FOLLOW_TOP, "follow_spectral": FOLLOW_SPECTRAL, "follow_bent": FOLLOW_BENT}
+              "follow_top": FOLLOW_TOP, "follow_spectral": FOLLOW_SPECTRAL, "follow_bent": FOLLOW_BENT,
+              "rigid_frames_with_poses": RIGID_FRAMES_WITH_POSES}
     deformed, _ = make_matcher("deform", **params).register(src, tgt, poses=_poses_for(fitted, tgt))
     plain = map_from_deformed(tgt, deformed, src.faces)
     # the map to the template with its mirrored patches repaired (the template's symmetry map from the null shape)
@@ -318,7 +320,7 @@ def test_template_poses_leave_the_shape_s_own_pose_out(builtin):
     assert {k: quick.get_params()[k] for k in QUICK} == dict(QUICK)
     assert (quick.n_starts, quick.refine_runs, quick.coarse_icp_iterations, quick.fine_icp_iterations, quick.feature_icp_iterations,
             quick.rigid_frames_with_poses, quick.pose_sources) == (1, 1, 10, 25, 30, ("as-given",), POSE_SOURCES)
-    assert posed.rigid_frames_with_poses is None and posed.refine_runs == REFINED_RUNS == 2
+    assert posed.rigid_frames_with_poses == RIGID_FRAMES_WITH_POSES == ("as-given",) and posed.refine_runs == REFINED_RUNS == 2
     assert make_matcher("template", quick=True, deform={"n_starts": 3}).fit([builtin[n] for n in ["syn00", *train]])._deformer().n_starts == 3
     assert make_matcher("template", quick=True, poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().get_params() == (
         make_matcher("template", poses=False).fit([builtin[n] for n in ["syn00", *train]])._deformer().get_params())
