@@ -141,7 +141,7 @@ FOLLOW_BENT = True
 #: down before its runs (attempts #184-#185 in ``docs/flagship.md``, session 56): the 15
 #: training maps and the 210 noisy-noisy training pairs' maps unchanged, the built-in
 #: benchmark 1.3966 topkids25-style (one map of 22 moved, syn04 1.444 -> 1.450) and 0.956 /
-#: 0.935 shrec16-style, the contact stand-ins STANDINS; 0.940 of the time per pair (per-shape
+#: 0.935 shrec16-style, the 52 contact stand-ins 4.042 against 3.999 (3 errors changed); 0.940 of the time per pair (per-shape
 #: median, two alternating runs). ``{"rigid_frames_with_poses": None}`` gives session 55's
 #: behaviour.
 RIGID_FRAMES_WITH_POSES: tuple[str, ...] | None = ("as-given",)
