@@ -403,8 +403,8 @@ def test_deform_race_changes_nothing_when_every_hypothesis_goes_on(pair, n_threa
             np.testing.assert_array_equal(r.deformed, r0.deformed)
             assert r.residual == r0.residual
     # the three that went on are the three best at the stop
-    samples, graph, basis = raced._setup(src, tgt)
-    _, stops, go_on = raced._verify(src, tgt, raced._check(), samples, graph, basis)
+    samples, graph, surface, basis = raced._setup(src, tgt)
+    _, stops, go_on = raced._verify(src, tgt, raced._check(), samples, graph, surface, basis)
     assert go_on is not None and all(r.resume_at == 3 for r in stops)
     assert [i for i, w in enumerate(whole) if w] == sorted(np.argsort([r.residual for r in stops], kind="stable")[:3])
     assert [r.residual for r, w in zip(results, whole) if not w] == [r.residual for r, w in zip(stops, whole) if not w]
@@ -426,7 +426,8 @@ def test_deform_surface_vertices(pair):
     m = make_matcher("deform", surface_vertices=1200, **kw)
     s1 = m._samples(src, 0)
     first = m._surface(src, s1)
-    assert first is m._surface(src, s1) and np.all(np.isin(s1, first)) and len(first) == 1200
+    assert np.all(np.isin(s1, first)) and len(first) == 1200 and np.all(np.diff(first) > 0)
+    assert np.array_equal(m._setup(src, tgt)[2], first)  # made once per run, beside the samples
     assert make_matcher("deform", **kw)._surface(src, s1) is None
     for bad in (-1, 2.5, True):
         with pytest.raises(ValueError, match="surface_vertices"):

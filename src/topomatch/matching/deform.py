@@ -168,6 +168,8 @@ class _Verified:
     """The mesh whose intrinsic data (the spectral hypotheses, the feature stage's local
     features) stand for the source's: the source as it is for a registration of the source
     in a pose (``pose_sources``); ``None``: the source."""
+    surface: IndexArray | None = None
+    """The coarse registrations' surface subset (``surface_vertices``, :meth:`DeformMatcher._surface`; ``None``: every vertex)."""
     resume: Callable[[list[RegistrationResult]], list[Any]] | None = None
     """With ``race_iterations``, until :func:`_raced`: takes the verifications stopped in
     the race that go on and returns their whole registrations (futures on a shared pool)."""
@@ -1775,23 +1777,13 @@ class DeformMatcher(Matcher):
     def _surface(self, source: TriangleMesh, samples: IndexArray) -> IndexArray | None:
         """The coarse registrations' ``surface`` (``surface_vertices``) for the source samples ``samples`` of :meth:`_samples`, sorted; ``None`` when off.
 
-        Kept for the samples' array it was made for (the same samples serve a run's
-        verification, continuation and limb turns).
+        Made once per run by :meth:`_setup`, beside the samples it contains.
         """
         n = int(self.surface_vertices)
         if n <= 0:
             return None
-        memo = self.__dict__.setdefault("_surfaces", {})
-        key = (id(samples), n)
-        hit = memo.get(key)
-        if hit is not None and hit[0] is samples and hit[1] is source.vertices:
-            return hit[2]
         first = farthest_point_sampling(min(n, source.n_vertices), points=source.vertices, first=int(samples[0]))
-        surface = np.union1d(first, samples)
-        if len(memo) >= 64:
-            memo.clear()
-        memo[key] = (samples, source.vertices, surface)
-        return surface
+        return np.union1d(first, samples)
 
     def _has_pose_hypotheses(self, poses: Sequence[tuple[str, FloatArray]]) -> bool:
         """Whether a registration given ``poses`` verifies pose hypotheses (:meth:`_pose_hypotheses`)."""
@@ -1816,8 +1808,8 @@ class DeformMatcher(Matcher):
 
     def _setup(
         self, source: TriangleMesh, target: TriangleMesh, start: int = 0
-    ) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph, EigenbasisJob | None]:
-        """Check the pair; farthest-point samples of both shapes and the coarse graph (shared by every step).
+    ) -> tuple[tuple[IndexArray, IndexArray], DeformationGraph, IndexArray | None, EigenbasisJob | None]:
+        """Check the pair; farthest-point samples of both shapes, the coarse graph and the coarse registrations' surface subset (:meth:`_surface`), shared by every step.
 
         ``start`` (of ``n_starts``) says where the farthest-point sampling of the
         samples and of the graph's nodes begins (:func:`_start_vertex`).
@@ -1838,7 +1830,7 @@ class DeformMatcher(Matcher):
         s1, s2 = self._samples(source, start), self._samples(target, start)
         first = _start_vertex(source.n_vertices, start, self.n_starts)
         graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices), first=first)
-        return (s1, s2), graph, target_basis
+        return (s1, s2), graph, self._surface(source, s1), target_basis
 
     def verify_hypotheses(
         self, source: TriangleMesh, target: TriangleMesh, *, poses: Sequence[tuple[str, FloatArray]] = ()
@@ -1858,10 +1850,11 @@ class DeformMatcher(Matcher):
         """
         settings = self._check()
         poses = _checked_poses(source, poses)
-        samples, graph, target_basis = self._setup(source, target)
-        hyps, results, resume = self._verify(source, target, settings, samples, graph, target_basis, poses)
+        samples, graph, surface, target_basis = self._setup(source, target)
+        hyps, results, resume = self._verify(source, target, settings, samples, graph, surface, target_basis, poses)
         if resume is not None:  # the race's best go on (here: the results are in hand)
-            results = _raced(_Verified(source, target, 0, samples, graph, hyps, results, np.empty(0, np.int64), 0.0, resume=resume, keep=int(self.race_keep))).results
+            results = _raced(_Verified(source, target, 0, samples, graph, hyps, results, np.empty(0, np.int64), 0.0, surface=surface,
+                                       resume=resume, keep=int(self.race_keep))).results
         return hyps, results
 
     def _verify(
@@ -1871,6 +1864,7 @@ class DeformMatcher(Matcher):
         settings: list[tuple[str, int, bool]],
         samples: tuple[IndexArray, IndexArray],
         graph: DeformationGraph,
+        surface: IndexArray | None = None,
         target_basis: EigenbasisJob | None = None,
         poses: Sequence[tuple[str, FloatArray]] = (),
         memo: dict[str, Any] | None = None,
@@ -1878,7 +1872,7 @@ class DeformMatcher(Matcher):
         intrinsic: TriangleMesh | None = None,
         only: frozenset[str] | None = None,
     ) -> tuple[list[Hypothesis], list[Any], Callable[[list[RegistrationResult]], list[Any]] | None]:
-        """:meth:`verify_hypotheses` on samples, a coarse graph and a background job from :meth:`_setup`.
+        """:meth:`verify_hypotheses` on samples, a coarse graph, its surface subset and a background job from :meth:`_setup`.
 
         With ``race_iterations`` the verifications stop there, and the third item
         continues those that go on (see :func:`_raced`); else it is ``None``.
@@ -1927,7 +1921,6 @@ class DeformMatcher(Matcher):
             others = (h for h in others if _followed(h.label, only))
 
         race = int(self.race_iterations) if self.race_iterations > 0 else None
-        surface = self._surface(source, s1)
 
         def verify(h: Hypothesis) -> RegistrationResult:
             tv = s2 if h.target is None else h.target
@@ -1989,6 +1982,7 @@ class DeformMatcher(Matcher):
         start: int = 0,
         intrinsic: TriangleMesh | None = None,
         features: bool = True,
+        surface: IndexArray | None = None,
     ) -> tuple[int, RegistrationResult, list[tuple[str, int]], dict[str, tuple[float, float]], list[dict]]:
         """Steps 3-6: swaps, continuation and choice, limb turns, fine registration (the last with the local features of ``intrinsic``, default ``source``; ``features=False`` stops before it)."""
         W = target.vertices
@@ -2007,7 +2001,6 @@ class DeformMatcher(Matcher):
             starts[int(order[0])] = assembled
             swaps = [(hyps[order[h]].label, nv) for h, nv in sw]
         i_best = int(order[0])
-        surface = self._surface(source, samples[0])
         continued: dict[str, tuple[float, float]] = {}
         if self.continue_icp_iterations > 0:
             cont = RegistrationSchedule(
@@ -2026,7 +2019,7 @@ class DeformMatcher(Matcher):
             for i, r in zip(ids, runs):
                 starts[i] = r.deformed
                 continued[hyps[i].label] = (float(r.residual), float(r.distortion))
-            limbs, r_best = self._turn_limbs(source, target, starts, i_best, scores[k_best], graph, samples, cont, (fine_graph, fine))
+            limbs, r_best = self._turn_limbs(source, target, starts, i_best, scores[k_best], graph, samples, cont, (fine_graph, fine), surface)
         else:
             limbs, r_best = [], None
         if r_best is None:
@@ -2068,6 +2061,7 @@ class DeformMatcher(Matcher):
         samples: tuple[IndexArray, IndexArray],
         cont: RegistrationSchedule,
         fine: tuple[DeformationGraph, RegistrationSchedule],
+        surface: IndexArray | None = None,
     ) -> tuple[list[dict], RegistrationResult | None]:
         """Step 5: rounds of limb turns on the chosen continued registration (updates ``starts[i_best]``).
 
@@ -2084,7 +2078,6 @@ class DeformMatcher(Matcher):
         def fine_registration(X: FloatArray) -> RegistrationResult:
             return register(source.vertices, source.faces, target.vertices, target.faces, None, fine_schedule, graph=fine_graph, start=X)
 
-        surface = self._surface(source, samples[0])
         fine_now: RegistrationResult | None = None  # the fine registration of starts[i_best]
         parts = source_limbs(graph) if self.limb_rounds > 0 else []
         by_fine = self.limb_judge == "fine"
@@ -2391,11 +2384,11 @@ class DeformMatcher(Matcher):
         if self.orientation_weight > 0 and len(chosen) > 1:
             fold(chosen)
             keys = [float(pending[k][1]["full_residual"]) + float(self.orientation_weight) * folded[k] for k in chosen]
+            k_best = chosen[int(np.argmin(keys))]  # the first of equals
         elif gate is not None and gate["passed"]:  # the others' fine-stage scores do not compete
-            keys = [0.0 if k == lead else np.inf for k in chosen]
+            k_best = lead
         else:
-            keys = [finished[k][0] for k in chosen]
-        k_best = chosen[int(np.argmin(keys))]  # the first of equals
+            k_best = chosen[int(np.argmin([finished[k][0] for k in chosen]))]  # the first of equals
         challenge: dict[str, Any] | None = None
         if n_chal and len(poses) > n_posed:
             # challengers (#136): registered only when the choice's map turns over at least
@@ -2460,11 +2453,11 @@ class DeformMatcher(Matcher):
         were only submitted to a ``pool``.
         """
         t0 = time.perf_counter()
-        samples, graph, target_basis = self._setup(source, target, start)
-        hyps, results, resume = self._verify(source, target, settings, samples, graph, target_basis, poses, memo, pool, intrinsic, only)
+        samples, graph, surface, target_basis = self._setup(source, target, start)
+        hyps, results, resume = self._verify(source, target, settings, samples, graph, surface, target_basis, poses, memo, pool, intrinsic, only)
         return _Verified(
             source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic,
-            resume=resume, keep=int(self.race_keep),
+            surface=surface, resume=resume, keep=int(self.race_keep),
         )
 
     def _refined(self, v: _Verified, features: bool = True) -> tuple[FloatArray, dict[str, Any]]:
@@ -2472,7 +2465,7 @@ class DeformMatcher(Matcher):
         t1 = time.perf_counter()
         with one_blas_thread():
             i_best, r_best, swaps, continued, limbs = self._refine(
-                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.intrinsic, features
+                v.source, v.target, v.hyps, v.results, v.order, v.samples, v.graph, v.start, v.intrinsic, features, v.surface
             )
         info = {
             "hypothesis": v.hyps[i_best].label,
