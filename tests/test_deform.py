@@ -11,6 +11,8 @@ from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, RegistrationSchedule, fit_residual, register
 from topomatch.matching import MATCHERS, make_matcher
 from topomatch.matching.deform import (
+    _PREPARED_KEPT,
+    _prepared,
     local_wks_features,
     map_from_deformed,
     swap_regions,
@@ -432,6 +434,26 @@ def test_deform_surface_vertices(pair):
     for bad in (-1, 2.5, True):
         with pytest.raises(ValueError, match="surface_vertices"):
             make_matcher("deform", surface_vertices=bad, **kw).match(src, tgt)
+
+
+def test_deform_keeps_samples_and_graphs_across_pairs(pair):
+    # the samples and graphs are pure functions of the mesh: made once, then the same
+    # objects for another mesh object with the same arrays (the next pair's template)
+    src, tgt, _ = pair
+    m = make_matcher("deform", n_samples=300, coarse_nodes=40, fine_nodes=90, n_starts=2, n_threads=1)
+    again = TriangleMesh(src.vertices.copy(), src.faces.copy())
+    s0 = m._samples(src, 0)
+    assert m._samples(again, 0) is s0 and not s0.flags.writeable
+    assert m._samples(src, 1) is not s0 and not np.array_equal(m._samples(src, 1), s0)
+    np.testing.assert_array_equal(s0, farthest_point_sampling(300, points=src.vertices, first=0))
+    g = m._graph(again, 40, 0)
+    assert m._setup(src, tgt)[1] is g and m._fine_graph(src, 0) is m._graph(again, 90, 0) is not g
+    moved = TriangleMesh(src.vertices * 1.01, src.faces)
+    assert m._graph(moved, 40, 0) is not g  # by content: other vertices, another graph
+    # at most _PREPARED_KEPT kept, the latest used
+    made = [_prepared(("test", k), lambda k=k: np.arange(k + 1)) for k in range(_PREPARED_KEPT + 3)]
+    assert _prepared(("test", _PREPARED_KEPT + 2), lambda: None) is made[-1]
+    assert _prepared(("test", 0), lambda: np.arange(1)) is not made[0]
 
 
 def test_deform_feature_gate(pair):

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from topomatch.datasets.toy import icosphere
-from topomatch.deform.kdtree import JointTree, PointTree
+from topomatch.deform.kdtree import JointTree, PointTree, _query_order
 from topomatch.deform.register import nearest_compatible
 
 
@@ -46,6 +46,27 @@ def test_nearest_compatible_equals_brute_force(n):
     dist, idx = tree.query(Q)
     np.testing.assert_array_equal(idx, _brute(P, Q, NQ, RN, 1, 0.0)[0])
     np.testing.assert_allclose(dist, np.linalg.norm(Q - P[idx], axis=1), rtol=1e-12)
+
+
+def test_query_order_is_a_permutation_and_keeps_answers():
+    rng = np.random.default_rng(3)
+    Q = rng.standard_normal((700, 3))
+    order = _query_order(Q)  # scattered queries: searched cell by cell
+    assert sorted(order) == list(range(len(Q))) and not np.array_equal(order, np.arange(len(Q)))
+    path = np.cumsum(0.01 * rng.standard_normal((700, 3)), axis=0)  # successive queries close together
+    np.testing.assert_array_equal(_query_order(path), np.arange(len(path)))
+    for degenerate in (np.zeros((5, 3)), Q[:1], np.zeros((0, 3))):  # one point, one place, none
+        np.testing.assert_array_equal(_query_order(degenerate), np.arange(len(degenerate)))
+    # the answers are the queries' own, whatever order they come in
+    P, RN = rng.standard_normal((2000, 3)), _unit(rng.standard_normal((2000, 3)))
+    NQ = _unit(rng.standard_normal(Q.shape))
+    tree = PointTree(P)
+    i, d = tree.nearest_compatible(Q, NQ, RN, k=8, min_cos=0.3)
+    shuffle = rng.permutation(len(Q))
+    i2, d2 = tree.nearest_compatible(Q[shuffle], NQ[shuffle], RN, k=8, min_cos=0.3)
+    np.testing.assert_array_equal(i2, i[shuffle])
+    np.testing.assert_array_equal(d2, d[shuffle])
+    np.testing.assert_array_equal(i, _brute(P, Q, NQ, RN, 8, 0.3)[0])
 
 
 def test_refit_stays_exact_for_moved_points():

@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from topomatch._kernels import position_terms
+from topomatch._kernels import dense_blocks, position_terms
 from topomatch.datasets.toy import icosphere
 from topomatch.deform import _reference as ref
 from topomatch.deform.graph import build_deformation_graph
-from topomatch.deform.register import DataPairs, GraphDeformation
+from topomatch.deform.register import DataPairs, GraphDeformation, _weighted_pairs
 
 
 @pytest.fixture(scope="module")
@@ -135,3 +135,48 @@ def test_rotation_step_rejects_non_finite_sums(deformation):
     with pytest.raises(np.linalg.LinAlgError, match="infs or NaNs"):
         D.update_rotations(None)
     _rest(D)
+
+
+def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
+    v = rng.standard_normal((n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_weighted_pairs_equal_the_numpy_formula(seed):
+    # the closest-point pairs' weights and the pairs kept: incompatible normals, an infinite
+    # and a zero distance, repeated vertices, both directions and each direction alone
+    rng = np.random.default_rng(seed)
+    n1, n2 = 400, 300
+    Ns, Vt, Nt = _unit(rng, n1), rng.standard_normal((n2, 3)), _unit(rng, n2)
+    src = rng.choice(n1, 250, replace=False)
+    j = rng.integers(0, n2, len(src))
+    d = rng.uniform(0, 0.2, len(src))
+    d[3], d[7] = np.inf, 0.0
+    tgt = rng.integers(0, n2, 200)
+    i = rng.integers(0, n1, len(tgt))
+    d2 = rng.uniform(0, 0.2, len(tgt))
+    empty_i, empty_d = np.zeros(0, dtype=np.int64), np.zeros(0)
+    for args in ((src, j, d, tgt, i, d2), (src, j, d, empty_i, empty_i, empty_d), (empty_i, empty_i, empty_d, tgt, i, d2)):
+        got = _weighted_pairs(*args, Ns, Vt, Nt, 0.05, 0.3)
+        want = ref.weighted_pairs(*args, Ns, Vt, Nt, 0.05, 0.3)
+        assert 0 < len(want.source) < len(args[0]) + len(args[3])  # some pairs dropped, some kept
+        np.testing.assert_array_equal(got.source, want.source)
+        np.testing.assert_array_equal(got.points, want.points)
+        np.testing.assert_array_equal(got.normals, want.normals)
+        np.testing.assert_allclose(got.weights, want.weights, rtol=0, atol=1e-15)
+    assert len(_weighted_pairs(empty_i, empty_i, empty_d, empty_i, empty_i, empty_d, Ns, Vt, Nt, 0.05, 0.3).source) == 0
+
+
+@pytest.mark.parametrize("blocks_of", ["point", "plane"])
+def test_dense_system_equals_the_fancy_indexed_one(deformation, blocks_of):
+    rng = np.random.default_rng(5)
+    P = deformation._pattern
+    m = len(P.diagonal)
+    keys = [(0, 0)] if blocks_of == "point" else [(i, j) for i in range(3) for j in range(i, 3)]
+    blocks = {ij: rng.standard_normal(P.n_entries) for ij in keys}
+    want = ref.dense_system(blocks, P.rows, P.cols, m, 1e-3)
+    H = np.zeros(want.shape, order="F")
+    dense_blocks(P.rows, P.cols, np.array([i for i, _ in keys]), np.array([j for _, j in keys]), np.array(list(blocks.values())), m, 1e-3, H)
+    np.testing.assert_array_equal(H, want)
+    assert np.count_nonzero(np.tril(H, -1)) == 0  # the upper triangle only, as LAPACK reads it

@@ -402,3 +402,74 @@ def position_terms(
         for a in range(3):
             t = reg * rhs[q, a] + y1[q, a]
             r_out[q, a] = t + y2[q, a] if plane else t
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def robust_pairs(
+    src, j, d, tgt, i, d2, source_normals, target_vertices, target_normals, sigma, min_cos, out_source, out_points, out_normals, out_weights
+):  # pragma: no cover - compiled
+    """The closest-point pairs of both directions with a positive robust weight, in order; returns their count.
+
+    Forward pairs ``(src[p] -> target j[p])`` at distance ``d[p]``, then backward pairs
+    ``(source i[p] <- target tgt[p])`` at ``d2[p]``; each weighs ``1 / (1 + (d / sigma)^2)``
+    where the two normals' cosine is at least ``min_cos``, else 0, and only pairs with a
+    positive weight are written to ``out_*`` (each of length ``len(src) + len(tgt)``).
+    Bit for bit the numpy formula it replaced (``closest_pairs`` before session 58:
+    ``_robust_weights`` on gathered rows, ``DataPairs.concat`` and ``weighted``) with
+    numpy 2.4 on x86-64: the cosine summed as ``(x_0 y_0 + x_2 y_2) + x_1 y_1`` (numpy's
+    einsum on contiguous rows) and ``(d / sigma)^2`` as a product (numpy's square).
+    """
+    n = 0
+    for p in range(src.shape[0]):
+        a = src[p]
+        b = j[p]
+        cos = (source_normals[a, 0] * target_normals[b, 0] + source_normals[a, 2] * target_normals[b, 2]) + source_normals[a, 1] * target_normals[b, 1]
+        w = 0.0
+        if cos >= min_cos:
+            t = d[p] / sigma
+            w = 1.0 / (1.0 + t * t)
+        if w > 0:
+            out_source[n] = a
+            for c in range(3):
+                out_points[n, c] = target_vertices[b, c]
+                out_normals[n, c] = target_normals[b, c]
+            out_weights[n] = w
+            n += 1
+    for p in range(tgt.shape[0]):
+        a = i[p]
+        b = tgt[p]
+        cos = (target_normals[b, 0] * source_normals[a, 0] + target_normals[b, 2] * source_normals[a, 2]) + target_normals[b, 1] * source_normals[a, 1]
+        w = 0.0
+        if cos >= min_cos:
+            t = d2[p] / sigma
+            w = 1.0 / (1.0 + t * t)
+        if w > 0:
+            out_source[n] = a
+            for c in range(3):
+                out_points[n, c] = target_vertices[b, c]
+                out_normals[n, c] = target_normals[b, c]
+            out_weights[n] = w
+            n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def dense_blocks(rows, cols, block_i, block_j, values, m, eps, H):  # pragma: no cover - compiled
+    """Write a symmetric ``d x d`` block matrix's upper triangle into ``H`` (zeroed, ``d m x d m``), plus ``eps`` on its diagonal.
+
+    Block ``(block_i[k], block_j[k])`` (``i <= j``) holds ``values[k]`` at the pattern
+    entries ``(rows[e], cols[e])`` (``rows <= cols``); an off-diagonal block also at
+    ``(cols[e], rows[e])``. The same matrix as ``_GramPattern.solve``'s fancy-indexed
+    assignments before session 58 (later blocks overwrite earlier ones alike).
+    """
+    for k in range(block_i.shape[0]):
+        bi = block_i[k] * m
+        bj = block_j[k] * m
+        off = block_i[k] != block_j[k]
+        for e in range(rows.shape[0]):
+            v = values[k, e]
+            H[bi + rows[e], bj + cols[e]] = v
+            if off:
+                H[bi + cols[e], bj + rows[e]] = v
+    for r in range(H.shape[0]):
+        H[r, r] += eps

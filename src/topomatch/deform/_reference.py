@@ -18,7 +18,7 @@ from scipy import sparse
 from topomatch.deform.register import DataPairs, GraphDeformation
 from topomatch.typing import FloatArray, IndexArray
 
-__all__ = ["affine_part", "deformed", "grams", "position_step", "position_terms", "rotations"]
+__all__ = ["affine_part", "deformed", "dense_system", "grams", "position_step", "position_terms", "robust_weights", "rotations", "weighted_pairs"]
 
 
 def _incidence(D: GraphDeformation) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
@@ -117,3 +117,32 @@ def position_step(D: GraphDeformation, pairs: DataPairs, *, alpha: float, mu_poi
     """The position step's new node positions, shape (m, 3) (the same linear solve as the library's)."""
     reg, r, w = position_terms(D, pairs, alpha, mu_point, mu_plane)
     return D._solved_positions(r, grams(D, pairs.source, w), reg, D._regulariser(D._link_weights()))
+
+
+def robust_weights(normals: FloatArray, other_normals: FloatArray, d: FloatArray, sigma: float, min_cos: float) -> FloatArray:
+    """``1 / (1 + (d / sigma)^2)`` where the two normals agree (cosine >= ``min_cos``), else 0; shape (p,)."""
+    cos = np.einsum("pc,pc->p", normals, other_normals)
+    return np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
+
+
+def weighted_pairs(
+    src: IndexArray, j: IndexArray, d: FloatArray, tgt: IndexArray, i: IndexArray, d2: FloatArray,
+    source_normals: FloatArray, target_vertices: FloatArray, target_normals: FloatArray, sigma: float, min_cos: float,
+) -> DataPairs:
+    """The closest-point pairs of both directions with a positive weight (``closest_pairs``' and ``feature_pairs``' formula before session 58)."""
+    return DataPairs.concat(
+        DataPairs(src, target_vertices[j], target_normals[j], robust_weights(source_normals[src], target_normals[j], d, sigma, min_cos)),
+        DataPairs(i, target_vertices[tgt], target_normals[tgt], robust_weights(target_normals[tgt], source_normals[i], d2, sigma, min_cos)),
+    ).weighted()
+
+
+def dense_system(blocks: dict[tuple[int, int], FloatArray], rows: IndexArray, cols: IndexArray, m: int, eps: float) -> FloatArray:
+    """The dense matrix ``_GramPattern.solve`` factorises (its upper triangle; before session 58, by fancy indexing), shape (d m, d m)."""
+    size = (max(max(ij) for ij in blocks) + 1) * m
+    H = np.zeros((size, size), order="F")
+    for (i, j), v in blocks.items():
+        H[i * m + rows, j * m + cols] = v
+        if i != j:
+            H[i * m + cols, j * m + rows] = v
+    H[np.diag_indices(size)] += eps
+    return H

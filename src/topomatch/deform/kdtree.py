@@ -213,6 +213,49 @@ def _box_d2_3(qx, qy, qz, bmin, bmax, node):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _query_order(Q):  # pragma: no cover - compiled
+    """An order in which to search the query points: cell by cell (an 8 x 8 x 8 grid on their box, cells in Morton order).
+
+    Successive searches then walk the same part of the tree: about 7 % faster for
+    farthest-point samples, which come in no spatial order (``kid00`` -> ``kid05``, 1,500
+    samples each way). Queries whose successive points lie closer than a cell on
+    average (a mesh's vertices in their own order) keep their order. The answers do not
+    depend on the order in which the queries are searched. Counting sort, O(q).
+    """
+    n = Q.shape[0]
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    step = 0.0
+    for i in range(n):
+        for c in range(3):
+            lo[c] = min(lo[c], Q[i, c])
+            hi[c] = max(hi[c], Q[i, c])
+            if i > 0:
+                step += abs(Q[i, c] - Q[i - 1, c])
+    span = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+    if not step < np.inf or step <= (n - 1) * span / 8.0:
+        return np.arange(n)
+    scale = 8.0 / span
+    keys = np.empty(n, np.int64)
+    count = np.zeros(513, np.int64)
+    for i in range(n):
+        key = 0
+        for c in range(3):
+            cell = min(int((Q[i, c] - lo[c]) * scale), 7)
+            for b in range(3):
+                key |= ((cell >> b) & 1) << (3 * b + c)
+        keys[i] = key
+        count[key + 1] += 1
+    for c in range(512):
+        count[c + 1] += count[c]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[count[keys[i]]] = i
+        count[keys[i]] += 1
+    return order
+
+
+@numba.njit(cache=True, nogil=True)
 def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_cos, out_i, out_d):  # pragma: no cover
     """For each query, the nearest compatible point among its ``k`` nearest (else the nearest), in one search (3-D).
 
@@ -230,7 +273,9 @@ def _nearest_compatible(Ps, perm, lo, hi, left, bmin, bmax, Q, NQ, RN, k, min_co
     inc_i = np.empty(max(k, 1), np.int64)
     k = max(k, 1)
     use_normals = k > 1
-    for q in range(Q.shape[0]):
+    order = _query_order(Q)
+    for qq in range(Q.shape[0]):
+        q = order[qq]
         qx, qy, qz = Q[q, 0], Q[q, 1], Q[q, 2]
         nx = ny = nz = 0.0
         if use_normals:

@@ -32,7 +32,14 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from topomatch._kernels import gram_entries, position_terms, rotation_step, skinned_vertices
+from topomatch._kernels import (
+    dense_blocks,
+    gram_entries,
+    position_terms,
+    robust_pairs,
+    rotation_step,
+    skinned_vertices,
+)
 from topomatch._lapack import cholesky_solve
 from topomatch.deform.graph import DeformationGraph
 from topomatch.deform.kdtree import JointTree, PointTree
@@ -97,14 +104,11 @@ class DataPairs:
         return DataPairs(self.source[keep], self.points[keep], self.normals[keep], self.weights[keep])
 
 
-def _robust_weights(normals: FloatArray, other_normals: FloatArray, d: FloatArray, sigma: float, min_cos: float) -> FloatArray:
-    """``1 / (1 + (d / sigma)^2)`` where the two normals agree (cosine >= ``min_cos``), else 0; shape (p,)."""
-    cos = np.einsum("pc,pc->p", normals, other_normals)
-    return np.where(cos >= min_cos, 1.0 / (1.0 + (d / sigma) ** 2), 0.0)
-
-
 _NO_ROWS = np.zeros(0, dtype=np.int64)
 """The ``rows`` argument of :func:`skinned_vertices` for every vertex."""
+
+_NO_DISTANCES = np.zeros(0)
+"""The distances of no pairs (a :func:`closest_pairs` without its backward direction)."""
 
 _NO_PAIRS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
 """Arguments of :func:`rotation_step` for a step without data pairs."""
@@ -375,11 +379,13 @@ class _GramPattern:
         r, c = self.rows, self.cols
         if size <= _DENSE_SOLVE_MAX:
             H = np.zeros((size, size), order="F")  # LAPACK's order: factorised in place
-            for (i, j), v in blocks.items():
-                H[i * m + r, j * m + c] = v
-                if i != j:  # the upper triangle of H holds the whole off-diagonal block
-                    H[i * m + c, j * m + r] = v
-            H[np.diag_indices(size)] += eps
+            # the upper triangle of H holds each diagonal block's upper triangle and the
+            # whole of each off-diagonal block (compiled: topomatch._kernels.dense_blocks)
+            keys = list(blocks)
+            dense_blocks(
+                r, c, np.array([i for i, _ in keys], dtype=np.int64), np.array([j for _, j in keys], dtype=np.int64),
+                np.array([blocks[ij] for ij in keys], dtype=np.float64), m, eps, H,
+            )
             # cho_solve(cho_factor(H)) bit for bit, without holding the GIL (threads solve side by side)
             return cholesky_solve(H, rhs + eps * x0)
         keys = tuple(sorted(blocks))
@@ -718,23 +724,45 @@ def closest_pairs(
     a tree on ``deformed`` (e.g. one refitted from the previous iteration,
     :meth:`PointTree.refit`) instead of building one (same pairs).
     """
-
-    def backward_pairs() -> DataPairs:
+    tgt = _NO_ROWS
+    if backward:
         tgt = np.arange(len(target_vertices)) if target_subset is None else np.asarray(target_subset)
-        stree = _search_tree(deformed) if source_tree is None else source_tree
-        i, d2 = nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
-        w2 = _robust_weights(target_normals[tgt], deformed_normals[i], d2, sigma, min_cos)
-        return DataPairs(i, target_vertices[tgt], target_normals[tgt], w2)
 
-    later = pool.submit(backward_pairs) if backward and pool is not None else None
+    def backward_search() -> tuple[IndexArray, FloatArray]:
+        stree = _search_tree(deformed) if source_tree is None else source_tree
+        return nearest_compatible(target_vertices[tgt], target_normals[tgt], stree, deformed_normals, min_cos=min_cos)
+
+    later = pool.submit(backward_search) if backward and pool is not None else None
     src = np.arange(len(deformed)) if source_subset is None else np.asarray(source_subset)
     j, d = nearest_compatible(deformed[src], deformed_normals[src], target_tree, target_normals, min_cos=min_cos)
-    parts = [DataPairs(src, target_vertices[j], target_normals[j], _robust_weights(deformed_normals[src], target_normals[j], d, sigma, min_cos))]
+    i, d2 = _NO_ROWS, _NO_DISTANCES
     if later is not None:
-        parts.append(later.result())
+        i, d2 = later.result()
     elif backward:
-        parts.append(backward_pairs())
-    return DataPairs.concat(*parts).weighted()
+        i, d2 = backward_search()
+    return _weighted_pairs(src, j, d, tgt, i, d2, deformed_normals, target_vertices, target_normals, sigma, min_cos)
+
+
+def _weighted_pairs(
+    src: IndexArray, j: IndexArray, d: FloatArray, tgt: IndexArray, i: IndexArray, d2: FloatArray,
+    source_normals: FloatArray, target_vertices: FloatArray, target_normals: FloatArray, sigma: float, min_cos: float,
+) -> DataPairs:
+    """The pairs ``src -> j`` (distances ``d``) and ``i <- tgt`` (``d2``) with their robust weights, those with a positive one.
+
+    Each pair weighs ``1 / (1 + (d / sigma)^2)`` where its two normals' cosine is at least
+    ``min_cos``, else 0; the forward pairs first, each direction in order (compiled:
+    :func:`topomatch._kernels.robust_pairs`; the numpy formula it replaced is
+    :func:`topomatch.deform._reference.weighted_pairs`).
+    """
+    size = len(src) + len(tgt)
+    source, points, normals, weights = np.empty(size, dtype=np.int64), np.empty((size, 3)), np.empty((size, 3)), np.empty(size)
+    n = robust_pairs(
+        np.ascontiguousarray(src, dtype=np.int64), np.ascontiguousarray(j, dtype=np.int64), np.ascontiguousarray(d, dtype=np.float64),
+        np.ascontiguousarray(tgt, dtype=np.int64), np.ascontiguousarray(i, dtype=np.int64), np.ascontiguousarray(d2, dtype=np.float64),
+        np.ascontiguousarray(source_normals, dtype=np.float64), np.ascontiguousarray(target_vertices, dtype=np.float64),
+        np.ascontiguousarray(target_normals, dtype=np.float64), float(sigma), float(min_cos), source, points, normals, weights,
+    )
+    return DataPairs(source[:n], points[:n], normals[:n], weights[:n])
 
 
 def feature_pairs(
@@ -788,10 +816,8 @@ def feature_pairs(
     j = target_tree.query(joint)[1]
     d = np.linalg.norm(deformed - target_vertices[j], axis=1)
     i, d2 = later.result() if later is not None else backward()
-    return DataPairs.concat(
-        DataPairs(np.arange(len(deformed)), target_vertices[j], target_normals[j], _robust_weights(deformed_normals, target_normals[j], d, sigma, min_cos)),
-        DataPairs(i, target_vertices, target_normals, _robust_weights(target_normals, deformed_normals[i], d2, sigma, min_cos)),
-    ).weighted()
+    every = np.arange(len(target_vertices))
+    return _weighted_pairs(np.arange(len(deformed)), j, d, every, i, d2, deformed_normals, target_vertices, target_normals, sigma, min_cos)
 
 
 @dataclass(frozen=True)

@@ -282,6 +282,39 @@ def _shape_spectral(mesh: TriangleMesh, kinds: tuple[str, ...], k_ops: int, k_ba
     return data
 
 
+_PREPARED_KEPT = 16
+"""Farthest-point samples and deformation graphs (:func:`_prepared`) that stay in memory,
+the latest used: a template's (the same for every pair: each sampling start's samples,
+coarse and fine graphs) and the pair's target's (shared by its registrations)."""
+
+_PREPARED: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
+_PREPARED_LOCK = threading.Lock()
+
+
+def _prepared(key: tuple[Any, ...], make: Callable[[], _T]) -> _T:
+    """``make()``, kept for the ``_PREPARED_KEPT`` keys used last; ``key`` must name everything ``make`` depends on.
+
+    For pure functions of a mesh (keyed by its content) that every registration of a
+    pair, and every pair of a template, would otherwise redo: the samples and graphs
+    are the same arrays, so the registrations are the same bit for bit. Kept arrays
+    are made read-only (one object serves registrations on several threads).
+    """
+    with _PREPARED_LOCK:
+        value = _PREPARED.get(key)
+        if value is not None:
+            _PREPARED.move_to_end(key)
+            return value
+    value = make()
+    if isinstance(value, np.ndarray):
+        value.setflags(write=False)
+    with _PREPARED_LOCK:
+        value = _PREPARED.setdefault(key, value)
+        _PREPARED.move_to_end(key)
+        while len(_PREPARED) > _PREPARED_KEPT:
+            _PREPARED.popitem(last=False)
+    return value
+
+
 def spectral_hypotheses(
     source: TriangleMesh,
     target: TriangleMesh,
@@ -385,10 +418,14 @@ with three starts)."""
 
 
 def _rigid_icp(
-    X: FloatArray, NX: FloatArray, Y: FloatArray, NY: FloatArray, R: FloatArray, t: FloatArray, iterations: int
+    X: FloatArray, NX: FloatArray, Y: FloatArray, NY: FloatArray, R: FloatArray, t: FloatArray, iterations: int, tree: PointTree | None = None
 ) -> tuple[FloatArray, FloatArray]:
-    """Refine ``x -> R x + t`` by point-to-point ICP with normal-compatible, robustly weighted pairs."""
-    tree = PointTree(Y)
+    """Refine ``x -> R x + t`` by point-to-point ICP with normal-compatible, robustly weighted pairs.
+
+    ``tree``: a :class:`PointTree` on ``Y`` (one serves every alignment onto the same
+    points); ``None`` builds one.
+    """
+    tree = PointTree(Y) if tree is None else tree
     for _ in range(iterations):
         Xt = X @ R.T + t
         j, d = nearest_compatible(Xt, NX @ R.T, tree, NY, min_cos=0.3)
@@ -459,8 +496,9 @@ def rigid_hypotheses(
     starts = [("rigid " + (suffix.strip() or "as-given"), R) for suffix, R in _frame_rotations(V, target.vertices, frames)]
     X = scale * V[s1]
     NX = source.vertex_normals[s1]
+    tree = PointTree(W)
     for label, R0 in starts:
-        R, t = _rigid_icp(X, NX, W, Nw, R0, c2 - scale * (R0 @ c1), icp_iterations)
+        R, t = _rigid_icp(X, NX, W, Nw, R0, c2 - scale * (R0 @ c1), icp_iterations, tree)
         yield Hypothesis(label, _nearest_aligned(W, Nw, scale * V @ R.T + t, source.vertex_normals @ R.T))
 
 
@@ -608,7 +646,7 @@ def _align_posed(
 
     def align(job: tuple[int, str, FloatArray, FloatArray, float, FloatArray]) -> tuple[float, str, FloatArray, FloatArray, FloatArray, FloatArray, float, int]:
         index, label, Vb, Nb, scale, R0 = job
-        R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, R0, c2 - scale * (R0 @ Vb.mean(axis=0)), icp_iterations)
+        R, t = _rigid_icp(scale * Vb[s1], Nb[s1], W, Nw, R0, c2 - scale * (R0 @ Vb.mean(axis=0)), icp_iterations, tree)
         X = scale * Vb[s1] @ R.T + t
         NX = Nb[s1] @ R.T
         _, d1 = nearest_compatible(X, NX, tree, Nw, min_cos=0.3)
@@ -1772,7 +1810,8 @@ class DeformMatcher(Matcher):
     def _samples(self, mesh: TriangleMesh, start: int) -> IndexArray:
         """Start ``start``'s farthest-point samples of ``mesh`` (:func:`_start_vertex`): at most ``n_samples``."""
         first = _start_vertex(mesh.n_vertices, start, self.n_starts)
-        return farthest_point_sampling(min(self.n_samples, mesh.n_vertices), points=mesh.vertices, first=first)
+        n = min(self.n_samples, mesh.n_vertices)
+        return _prepared(("samples", mesh.content_hash, n, first), lambda: farthest_point_sampling(n, points=mesh.vertices, first=first))
 
     def _surface(self, source: TriangleMesh, samples: IndexArray) -> IndexArray | None:
         """The coarse registrations' ``surface`` (``surface_vertices``) for the source samples ``samples`` of :meth:`_samples`, sorted; ``None`` when off.
@@ -1828,8 +1867,7 @@ class DeformMatcher(Matcher):
         if self.background_eigenbasis and self._n_threads() > 1 and self.accept_residual <= 0:
             target_basis = target.eigenbasis_in_background(self.k_zoomout)
         s1, s2 = self._samples(source, start), self._samples(target, start)
-        first = _start_vertex(source.n_vertices, start, self.n_starts)
-        graph = build_deformation_graph(source.vertices, source.faces, min(self.coarse_nodes, source.n_vertices), first=first)
+        graph = self._graph(source, self.coarse_nodes, start)
         return (s1, s2), graph, self._surface(source, s1), target_basis
 
     def verify_hypotheses(
@@ -2030,9 +2068,13 @@ class DeformMatcher(Matcher):
 
     def _fine_graph(self, source: TriangleMesh, start: int) -> DeformationGraph:
         """The deformation graph of the fine and feature stages (one per source and sampling start)."""
-        return build_deformation_graph(
-            source.vertices, source.faces, min(self.fine_nodes, source.n_vertices), first=_start_vertex(source.n_vertices, start, self.n_starts)
-        )
+        return self._graph(source, self.fine_nodes, start)
+
+    def _graph(self, source: TriangleMesh, n_nodes: int, start: int) -> DeformationGraph:
+        """The deformation graph of ``n_nodes`` nodes of sampling start ``start`` (kept across pairs, :func:`_prepared`)."""
+        n = min(n_nodes, source.n_vertices)
+        first = _start_vertex(source.n_vertices, start, self.n_starts)
+        return _prepared(("graph", source.content_hash, n, first), lambda: build_deformation_graph(source.vertices, source.faces, n, first=first))
 
     def _feature_stage(
         self, source: TriangleMesh, target: TriangleMesh, fine_graph: DeformationGraph, fine: FloatArray, intrinsic: TriangleMesh | None
