@@ -7,8 +7,9 @@ agrees with the query's (among its ``k`` nearest; the nearest when none agrees).
 :class:`PointTree` answers it in one compiled depth-first search per query (since
 session 35; before, a second ``k``-nearest search followed for the queries whose nearest
 point disagrees, about 30 % of a registration's), without holding the GIL, so the
-registrations that run on threads search side by side. The answers are exact and equal
-to a brute-force search's (the registration's maps were unchanged against scipy's
+registrations that run on threads search side by side. Queries that come in no spatial
+order (farthest-point samples) are searched cell by cell (:func:`_query_order`, about 7 %
+faster; session 58). The answers are exact and equal to a brute-force search's (the registration's maps were unchanged against scipy's
 ``cKDTree``, and again by the one-search form). On the queries of one ``deform`` match
 (kid00 -> kid13, one thread, every tenth query, ``benchmarks/bench_kdtree.py``) they
 took 0.128 s against 0.387 s for ``cKDTree`` (x3.0; the two-search form: 0.203 s, x1.9;
