@@ -6,14 +6,15 @@ its own long-lived process (``--baseline``: the ``src`` folder of another checko
 topomatch), both fitted once, and every target is matched by one, then the other, the
 order swapped from target to target (ABBA), so that the machine's drift, which moves a
 pair's time by more than most changes save, falls on both alike. Each match starts
-afresh (the template's registrations kept by ``TemplateMatcher`` are cleared). Printed:
+afresh (the template's registrations kept by ``TemplateMatcher`` are cleared); with
+``--warmup`` each worker first matches that shape unmeasured. Printed:
 each target's two times, their ratio and whether the two maps are equal bit for bit;
 then the median of the per-target ratios (each target's median over ``--rounds``) and
-each version's median time. The first target's times include what a version compiles
-or caches on its first pair.
+each version's median time. Without ``--warmup`` the first target's times include what
+a version compiles or caches on its first pair.
 
     python benchmarks/bench_versions.py --baseline ../base/src [--data DATA] [--method template]
-        [--targets kid01,kid02,...] [--rounds 2] [--json out.json]
+        [--targets kid01,kid02,...] [--rounds 2] [--warmup kid15] [--json out.json]
 
 Without ``--targets`` the 14 training shapes kid01..kid14 (kid15 is challenged, about
 three pairs' time). Session 58 (#188) measured its change with this script.
@@ -81,6 +82,7 @@ def main() -> None:
     ap.add_argument("--method", default="template")
     ap.add_argument("--targets", default=_TRAINING, help="comma-separated TOPKIDS shapes matched from kid00")
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--warmup", help="a shape each version matches once, unmeasured, before the targets")
     ap.add_argument("--json", help="write every time and digest here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -104,6 +106,9 @@ def main() -> None:
             raise SystemExit(f"bench_versions: the {version} worker failed on {name}")
         return float(reply[1]), reply[2]
 
+    if args.warmup:
+        for version in procs:
+            ask(version, args.warmup)
     print(f"{'target':8s} {'baseline s':>11s} {'this s':>8s} {'ratio':>7s}  maps")
     k = 0
     for _ in range(args.rounds):
