@@ -37,6 +37,7 @@ _TRAINING = ",".join(f"kid{i:02d}" for i in range(1, 15))
 def _worker(data: str, method: str) -> None:
     """The child: fit ``method`` on the TOPKIDS reference and training shapes, then match the targets read from stdin."""
     import numpy as np
+    from _common import fit_shapes
 
     from topomatch._memory import PeakMemory
     from topomatch.datasets.topkids import load_topkids
@@ -45,7 +46,7 @@ def _worker(data: str, method: str) -> None:
     coll = load_topkids(data, "low")
     matcher = make_matcher(method)
     if matcher.requires_fit:
-        matcher.fit([coll[n] for n in coll.present([coll.reference, *coll.splits.get("train", [])])])
+        matcher.fit([coll[n] for n in fit_shapes(coll)])
     source = coll[coll.reference].mesh
     print("ready", flush=True)
     for line in sys.stdin:

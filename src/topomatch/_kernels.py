@@ -420,28 +420,17 @@ def robust_pairs(
     einsum on contiguous rows) and ``(d / sigma)^2`` as a product (numpy's square).
     """
     n = 0
-    for p in range(src.shape[0]):
-        a = src[p]
-        b = j[p]
+    n_forward = src.shape[0]
+    for p in range(n_forward + tgt.shape[0]):
+        if p < n_forward:
+            a, b, dist = src[p], j[p], d[p]
+        else:
+            a, b, dist = i[p - n_forward], tgt[p - n_forward], d2[p - n_forward]
+        # the same products either way round: the backward pairs' cosine (target normal first) alike
         cos = (source_normals[a, 0] * target_normals[b, 0] + source_normals[a, 2] * target_normals[b, 2]) + source_normals[a, 1] * target_normals[b, 1]
         w = 0.0
         if cos >= min_cos:
-            t = d[p] / sigma
-            w = 1.0 / (1.0 + t * t)
-        if w > 0:
-            out_source[n] = a
-            for c in range(3):
-                out_points[n, c] = target_vertices[b, c]
-                out_normals[n, c] = target_normals[b, c]
-            out_weights[n] = w
-            n += 1
-    for p in range(tgt.shape[0]):
-        a = i[p]
-        b = tgt[p]
-        cos = (target_normals[b, 0] * source_normals[a, 0] + target_normals[b, 2] * source_normals[a, 2]) + target_normals[b, 1] * source_normals[a, 1]
-        w = 0.0
-        if cos >= min_cos:
-            t = d2[p] / sigma
+            t = dist / sigma
             w = 1.0 / (1.0 + t * t)
         if w > 0:
             out_source[n] = a
