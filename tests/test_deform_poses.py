@@ -322,6 +322,44 @@ def test_limb_turns_judged_at_the_fine_level(builtin):
 
 
 
+def test_every_run_s_extrinsic_hypotheses_are_made_before_the_spectral_ones(builtin, monkeypatch):
+    """On threads the main thread makes each run's rigid hypotheses before any run's spectral ones (the pool stays fed); the results as on one thread."""
+    import topomatch.matching.deform as deform_module
+
+    src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
+    poses = [("a", bends[0][1]), ("b", bends[2][1])]
+    made: list[tuple[str, bool]] = []  # (family, posed run) in the order the hypotheses are made
+    rigid, spectral = deform_module.rigid_hypotheses, deform_module.spectral_hypotheses
+
+    def logged(family, make):
+        def spy(source, *args, **kw):
+            posed = not np.array_equal(source.vertices, src.vertices)
+            for h in make(source, *args, **kw):
+                made.append((family, posed))
+                yield h
+        return spy
+
+    monkeypatch.setattr(deform_module, "rigid_hypotheses", logged("rigid", rigid))
+    monkeypatch.setattr(deform_module, "spectral_hypotheses", logged("spectral", spectral))
+    fast = {**_FAST_POSED, "n_starts": 2}
+    two, info_two = make_matcher("deform", **fast, pose_sources=1, n_threads=2).register(src, tgt, poses=poses)
+    made_two = list(made)
+    made.clear()
+    one, info_one = make_matcher("deform", **fast, pose_sources=1, n_threads=1).register(src, tgt, poses=poses)
+    assert [r["source_pose"] for r in info_two["runs"]] == [None, None, "b"]
+    # start 0 and the posed source are made together (start 1 follows start 0's results):
+    # both runs' rigid hypotheses before the first spectral one
+    first_spectral = next(i for i, (family, _) in enumerate(made_two) if family == "spectral")
+    assert {posed for family, posed in made_two[:first_spectral] if family == "rigid"} == {False, True}
+    # one thread makes each run's hypotheses in turn
+    assert [posed for family, posed in made if family == "spectral"] == sorted(posed for family, posed in made if family == "spectral")
+    # the same registrations either way: hypotheses in the same order, same scores, same result
+    np.testing.assert_array_equal(two, one)
+    assert [(r["hypothesis"], r["verified_score"], r["score"]) for r in info_two["runs"]] == [
+        (r["hypothesis"], r["verified_score"], r["score"]) for r in info_one["runs"]
+    ]
+
+
 def test_deform_posed_source_uses_the_source_own_intrinsic_data(builtin, monkeypatch):
     """The posed copy is the source's surface in another pose: its spectral hypotheses and feature stage read the source's own data."""
     src, bends, tgt, _ = _bent_syn00(builtin, seed=7)

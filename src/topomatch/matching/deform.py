@@ -1909,6 +1909,7 @@ class DeformMatcher(Matcher):
         pool: ThreadPoolExecutor | None = None,
         intrinsic: TriangleMesh | None = None,
         only: frozenset[str] | None = None,
+        deferred: list[Callable[[], None]] | None = None,
     ) -> tuple[list[Hypothesis], list[Any], Callable[[list[RegistrationResult]], list[Any]] | None]:
         """:meth:`verify_hypotheses` on samples, a coarse graph, its surface subset and a background job from :meth:`_setup`.
 
@@ -1922,6 +1923,13 @@ class DeformMatcher(Matcher):
         ``"<prefix>*"`` standing for every label that begins with the prefix
         (``follow_bent``); the spectral settings and bent copies without one are not
         computed. ``None``: all.
+
+        ``deferred`` (with a ``pool``): only the extrinsic hypotheses are made and
+        submitted now; a step appended to ``deferred`` makes and submits the spectral
+        and the matchers' ones, filling the returned lists in place (the same order as
+        without it). The caller runs the steps before it reads the lists, so that the
+        pool verifies the next runs' extrinsic hypotheses while this thread computes
+        the spectral ones (each verification's result does not depend on when it runs).
         """
         s1, s2 = samples
         W = target.vertices
@@ -1996,16 +2004,35 @@ class DeformMatcher(Matcher):
         # threads competing with ours. With a ``pool`` from the caller the verifications
         # are only submitted (their futures returned): :meth:`register` makes the next
         # run's hypotheses while the pool verifies this one's.
-        with one_blas_thread(), (nullcontext(pool) if pool is not None else ThreadPoolExecutor(max_workers=n)) as ex:
+        if pool is not None:
+            go_on_pool = None if race is None else (lambda rs: [pool.submit(go_on, r) for r in rs])
+            with one_blas_thread():
+                later = [(h, pool.submit(verify, h)) for h in extrinsic]
+            hyps_out: list[Hypothesis] = []
+            futures: list[Any] = []
+
+            def rest() -> None:
+                with one_blas_thread():
+                    if target_basis is not None:  # waits without the GIL while the pool verifies
+                        target_basis.result()
+                    first = [(h, pool.submit(verify, h)) for h in spectral]
+                    last = [(h, pool.submit(verify, h)) for h in others]
+                done = first + later + last
+                hyps_out[:] = [h for h, _ in done]
+                futures[:] = [f for _, f in done]
+
+            if deferred is None:
+                rest()
+            else:
+                deferred.append(rest)
+            return hyps_out, futures, go_on_pool
+        with one_blas_thread(), ThreadPoolExecutor(max_workers=n) as ex:
             later = [(h, ex.submit(verify, h)) for h in extrinsic]
             if target_basis is not None:  # waits without the GIL while the pool verifies
                 target_basis.result()
             first = [(h, ex.submit(verify, h)) for h in spectral]
             last = [(h, ex.submit(verify, h)) for h in others]
             done = first + later + last
-            if pool is not None:
-                go_on_pool = None if race is None else (lambda rs: [pool.submit(go_on, r) for r in rs])
-                return [h for h, _ in done], [f for _, f in done], go_on_pool
             return [h for h, _ in done], [f.result() for _, f in done], here
 
     def _refine(
@@ -2255,15 +2282,15 @@ class DeformMatcher(Matcher):
 
         def submit(
             size: int | None, start: int, with_poses: bool, posed: int | None, challengers: bool, only: frozenset[str] | None,
-            pool: ThreadPoolExecutor | None,
+            pool: ThreadPoolExecutor | None, deferred: list[Callable[[], None]] | None = None,
         ) -> tuple[_Verified, dict[str, Any], FloatArray | None, FloatArray]:
-            """One run's hypotheses, submitted for verification (to ``pool``, if any), with its record."""
+            """One run's hypotheses, submitted for verification (to ``pool``, if any), with its record (``deferred``: see :meth:`_verify`)."""
             src, tgt, src_poses, memo, back, _ = prepare(size)
             rest = src if posed is None else TriangleMesh(src_poses[posed][1], src.faces, name=f"{src.name} posed {src_poses[posed][0]}")
             # the posed copy is the source's surface in another pose: its intrinsic data
             # (spectral hypotheses, local features) are the source's own
             v = self._verified(rest, tgt, settings, start, src_poses if with_poses else (), memo, pool,
-                               intrinsic=None if posed is None else src, only=only)
+                               intrinsic=None if posed is None else src, only=only, deferred=deferred)
             home = source.vertices if posed is None else poses[posed][1]
             run = {"working_size": size, "start": start, "poses": bool(with_poses and src_poses),
                    "source_pose": None if posed is None else src_poses[posed][0],
@@ -2290,6 +2317,9 @@ class DeformMatcher(Matcher):
                     # only its best hypotheses; it is made after the others, in its place in the plan
                     leaders: dict[bool, int] = {}  # start 0's run (with or without the poses): its index in submitted
                     followers: list[tuple[int, int, bool]] = []
+                    # every run's extrinsic hypotheses (cheap) first, then their spectral ones: the pool
+                    # verifies the next runs' while this thread makes the spectral (as many, the same results)
+                    deferred: list[Callable[[], None]] | None = [] if pool is not None else None
                     for start, with_poses, posed in plan:
                         key = (src.n_vertices, tgt.n_vertices, start, with_poses, posed)
                         if key in done:  # e.g. both meshes within two sizes
@@ -2299,9 +2329,11 @@ class DeformMatcher(Matcher):
                             followers.append((len(submitted), start, with_poses))
                             submitted.append(None)  # type: ignore[arg-type]
                             continue
-                        submitted.append(submit(size, start, with_poses, posed, challengers, None, pool))
+                        submitted.append(submit(size, start, with_poses, posed, challengers, None, pool, deferred))
                         if posed is None and start == 0:
                             leaders[with_poses] = len(submitted) - 1
+                    for step in deferred or ():
+                        step()
                     for index, start, with_poses in followers:
                         k_lead = leaders[with_poses]
                         # collected once, kept in place (a race's best go on only once)
@@ -2488,15 +2520,17 @@ class DeformMatcher(Matcher):
         pool: ThreadPoolExecutor | None = None,
         intrinsic: TriangleMesh | None = None,
         only: frozenset[str] | None = None,
+        deferred: list[Callable[[], None]] | None = None,
     ) -> _Verified:
         """Steps 1-2 of one registration: samples and coarse graph, hypotheses, verification (of the labels ``only``, if given).
 
         The results are ordered by :func:`_collected`, which also waits for them when they
-        were only submitted to a ``pool``.
+        were only submitted to a ``pool``. ``deferred``: as for :meth:`_verify` (the
+        hypotheses and results are filled in when its steps run).
         """
         t0 = time.perf_counter()
         samples, graph, surface, target_basis = self._setup(source, target, start)
-        hyps, results, resume = self._verify(source, target, settings, samples, graph, surface, target_basis, poses, memo, pool, intrinsic, only)
+        hyps, results, resume = self._verify(source, target, settings, samples, graph, surface, target_basis, poses, memo, pool, intrinsic, only, deferred)
         return _Verified(
             source, target, start, samples, graph, hyps, results, np.empty(0, np.int64), time.perf_counter() - t0, intrinsic,
             surface=surface, resume=resume, keep=int(self.race_keep),
