@@ -323,41 +323,81 @@ def test_limb_turns_judged_at_the_fine_level(builtin):
 
 
 def test_every_run_s_extrinsic_hypotheses_are_made_before_the_spectral_ones(builtin, monkeypatch):
-    """On threads the main thread makes each run's rigid hypotheses before any run's spectral ones (the pool stays fed); the results as on one thread."""
+    """On threads the main thread makes every run's rigid hypotheses before any spectral ones, and a follower's spectral ones before its leader is collected; the results as on one thread."""
     import topomatch.matching.deform as deform_module
 
     src, bends, tgt, _ = _bent_syn00(builtin, seed=7)
     poses = [("a", bends[0][1]), ("b", bends[2][1])]
-    made: list[tuple[str, bool]] = []  # (family, posed run) in the order the hypotheses are made
-    rigid, spectral = deform_module.rigid_hypotheses, deform_module.spectral_hypotheses
+    s1_start1 = deform_module.farthest_point_sampling(600, points=src.vertices, first=deform_module._start_vertex(src.n_vertices, 1, 2))
+    made: list[tuple[str, str]] = []  # (what, which run) in the order the main thread makes them
+
+    def run_of(source, s1) -> str:
+        if not np.array_equal(source.vertices, src.vertices):
+            return "posed"
+        return "start 1" if np.array_equal(s1, s1_start1) else "start 0"
 
     def logged(family, make):
-        def spy(source, *args, **kw):
-            posed = not np.array_equal(source.vertices, src.vertices)
-            for h in make(source, *args, **kw):
-                made.append((family, posed))
+        def spy(source, target, s1, *args, **kw):
+            for h in make(source, target, s1, *args, **kw):
+                made.append((family, run_of(source, s1)))
                 yield h
         return spy
 
-    monkeypatch.setattr(deform_module, "rigid_hypotheses", logged("rigid", rigid))
-    monkeypatch.setattr(deform_module, "spectral_hypotheses", logged("spectral", spectral))
-    fast = {**_FAST_POSED, "n_starts": 2}
-    two, info_two = make_matcher("deform", **fast, pose_sources=1, n_threads=2).register(src, tgt, poses=poses)
+    collected = deform_module._collected
+
+    def collect_spy(v):
+        made.append(("collected", run_of(v.source, v.samples[0])))
+        return collected(v)
+
+    monkeypatch.setattr(deform_module, "rigid_hypotheses", logged("rigid", deform_module.rigid_hypotheses))
+    monkeypatch.setattr(deform_module, "spectral_hypotheses", logged("spectral", deform_module.spectral_hypotheses))
+    monkeypatch.setattr(deform_module, "_collected", collect_spy)
+    fast = {**_FAST_POSED, "n_starts": 2, "pose_sources": 1, "follow_top": 2, "follow_spectral": True}
+    two, info_two = make_matcher("deform", **fast, n_threads=2).register(src, tgt, poses=poses)
     made_two = list(made)
     made.clear()
-    one, info_one = make_matcher("deform", **fast, pose_sources=1, n_threads=1).register(src, tgt, poses=poses)
-    assert [r["source_pose"] for r in info_two["runs"]] == [None, None, "b"]
+    one, info_one = make_matcher("deform", **fast, n_threads=1).register(src, tgt, poses=poses)
+    assert [r["source_pose"] for r in info_two["runs"]] == [None, None, "b"] and "followed" in info_two["runs"][1]
     # start 0 and the posed source are made together (start 1 follows start 0's results):
     # both runs' rigid hypotheses before the first spectral one
-    first_spectral = next(i for i, (family, _) in enumerate(made_two) if family == "spectral")
-    assert {posed for family, posed in made_two[:first_spectral] if family == "rigid"} == {False, True}
+    first_spectral = made_two.index(next(x for x in made_two if x[0] == "spectral"))
+    assert {run for family, run in made_two[:first_spectral] if family == "rigid"} == {"start 0", "posed"}
+    # start 1's spectral hypotheses (every setting) are made before start 0, its leader, is
+    # collected (read back from the cache when start 1 is verified)
+    before = made_two[: made_two.index(("collected", "start 0"))]
+    assert before.count(("spectral", "start 1")) == len(make_matcher("deform")._check())
     # one thread makes each run's hypotheses in turn
-    assert [posed for family, posed in made if family == "spectral"] == sorted(posed for family, posed in made if family == "spectral")
+    assert made.index(("spectral", "start 0")) < made.index(("rigid", "posed"))
     # the same registrations either way: hypotheses in the same order, same scores, same result
     np.testing.assert_array_equal(two, one)
     assert [(r["hypothesis"], r["verified_score"], r["score"]) for r in info_two["runs"]] == [
         (r["hypothesis"], r["verified_score"], r["score"]) for r in info_one["runs"]
     ]
+
+
+def test_spectral_hypotheses_are_kept_per_samples(builtin, monkeypatch):
+    """With a cache, a second call on the same samples reads the hypotheses back (no ZoomOut); other samples compute their own."""
+    import topomatch.matching.deform as deform_module
+
+    src, _, tgt, _ = _bent_syn00(builtin, seed=7)
+    settings = [("hks", 10, False), ("hks", 20, False)]
+    s1 = farthest_point_sampling(300, points=src.vertices, first=0)
+    s2 = farthest_point_sampling(300, points=tgt.vertices, first=0)
+    s1b = farthest_point_sampling(300, points=src.vertices, first=5)
+    calls = []
+    real = deform_module.nearest_neighbors
+    monkeypatch.setattr(deform_module, "nearest_neighbors", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    cache: dict = {}
+    first = list(spectral_hypotheses(src, tgt, s1, s2, settings, k_zoomout=30, cache=cache))
+    n_first = len(calls)
+    again = list(spectral_hypotheses(src, tgt, s1, s2, settings, k_zoomout=30, cache=cache))
+    assert len(calls) == n_first > 0
+    assert [h.label for h in again] == [h.label for h in first]
+    assert all(np.array_equal(a.p2p, b.p2p) and not a.p2p.flags.writeable for a, b in zip(again, first))
+    other = list(spectral_hypotheses(src, tgt, s1b, s2, settings, k_zoomout=30, cache=cache))
+    assert len(calls) == 2 * n_first
+    fresh = list(spectral_hypotheses(src, tgt, s1b, s2, settings, k_zoomout=30))
+    assert all(np.array_equal(a.p2p, b.p2p) for a, b in zip(other, fresh))
 
 
 def test_deform_posed_source_uses_the_source_own_intrinsic_data(builtin, monkeypatch):

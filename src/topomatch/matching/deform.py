@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import hashlib
 import logging
 import os
 import threading
@@ -351,7 +352,8 @@ def spectral_hypotheses(
     cache : dict, optional
         Keeps the initial functional maps (they do not depend on the samples) for later
         calls on the same pair with other samples, e.g. the sampling starts of
-        :class:`DeformMatcher` (``n_starts``). Each shape's eigenbasis, descriptors and
+        :class:`DeformMatcher` (``n_starts``), and each hypothesis for a later call with
+        the same samples (read-only arrays). Each shape's eigenbasis, descriptors and
         operators are kept by content in any case, for the last few shapes used
         (:func:`_shape_spectral`).
 
@@ -370,7 +372,15 @@ def spectral_hypotheses(
     e1 = s1.basis_evecs[samples_1]
     e2 = s2.basis_evecs[samples_2]
     m2 = s2.mass[samples_2] * (s2.mass.sum() / s2.mass[samples_2].sum())
+    # the hypotheses themselves depend on the samples too: kept per pair, setting and samples
+    sampled = (hashlib.sha1(np.ascontiguousarray(samples_1, dtype=np.int64).tobytes()).hexdigest(),
+               hashlib.sha1(np.ascontiguousarray(samples_2, dtype=np.int64).tobytes()).hexdigest(), step)
     for kind, k, rev in settings:
+        h_key = (key, kind, k, rev, weights, sampled)
+        kept = cache.get(h_key) if cache is not None else None
+        if kept is not None:
+            yield Hypothesis(_spectral_label(kind, k, rev), kept)
+            continue
         sign = -1.0 if rev else 1.0
         # the initial map does not depend on the samples: solved once per pair and setting
         c_key = (key, kind, k, rev, weights)
@@ -388,7 +398,11 @@ def spectral_hypotheses(
             p = nearest_neighbors(e1[:, :kc] @ C.T, e2[:, :kc])
             C = _fmap_from_p2p_rows(p, e1[:, :kk], e2[:, :kk], m2)
         p = nearest_neighbors(e1[:, : C.shape[0]] @ C.T, e2[:, : C.shape[0]])
-        yield Hypothesis(_spectral_label(kind, k, rev), np.asarray(samples_1)[p])
+        mapped = np.asarray(samples_1)[p]
+        if cache is not None:
+            mapped.setflags(write=False)
+            cache[h_key] = mapped
+        yield Hypothesis(_spectral_label(kind, k, rev), mapped)
 
 
 def _followed(label: str, only: frozenset[str]) -> bool:
@@ -2334,6 +2348,14 @@ class DeformMatcher(Matcher):
                             leaders[with_poses] = len(submitted) - 1
                     for step in deferred or ():
                         step()
+                    if pool is not None and followers and self.follow_spectral and settings:
+                        # a follower verifies every spectral setting on its own samples: made here, while
+                        # the pool verifies, and kept for it (its other hypotheses wait for its leader)
+                        with one_blas_thread():
+                            for _, start, _ in followers:
+                                for _ in spectral_hypotheses(src, tgt, self._samples(src, start), self._samples(tgt, start), settings,
+                                                             k_zoomout=self.k_zoomout, cache=prepared[size].memo):
+                                    pass
                     for index, start, with_poses in followers:
                         k_lead = leaders[with_poses]
                         # collected once, kept in place (a race's best go on only once)
