@@ -11,10 +11,14 @@ afresh (the template's registrations kept by ``TemplateMatcher`` are cleared); w
 each target's two times, their ratio and whether the two maps are equal bit for bit;
 then the median of the per-target ratios (each target's median over ``--rounds``) and
 each version's median time. Without ``--warmup`` the first target's times include what
-a version compiles or caches on its first pair.
+a version compiles or caches on its first pair. ``--cache-dir`` turns the disk cache of
+eigenbases on in both workers, as ``topomatch bench`` does (default: off, unless
+``TOPOMATCH_CACHE_DIR`` is set; without it the ``deform`` matchers compute each target's
+eigenbasis in a forked child). Two rounds resolve about 3 % of a pair's time on a
+2-core machine (session 59: the same change measured 0.955, then 0.981 with more in it).
 
     python benchmarks/bench_versions.py --baseline ../base/src [--data DATA] [--method template]
-        [--targets kid01,kid02,...] [--rounds 2] [--warmup kid15] [--json out.json]
+        [--targets kid01,kid02,...] [--rounds 2] [--warmup kid15] [--cache-dir DIR] [--json out.json]
 
 Without ``--targets`` the 14 training shapes kid01..kid14 (kid15 is challenged, about
 three pairs' time). Session 58 (#188) measured its change with this script.
@@ -62,11 +66,13 @@ def _worker(data: str, method: str) -> None:
         print(name, f"{seconds:.4f}", digest, flush=True)
 
 
-def _start(data: str, method: str, pythonpath: str | None) -> subprocess.Popen:
+def _start(data: str, method: str, pythonpath: str | None, cache_dir: str | None) -> subprocess.Popen:
     env = dict(os.environ)
     env.pop("PYTHONPATH", None)
     if pythonpath:
         env["PYTHONPATH"] = os.path.abspath(pythonpath)
+    if cache_dir:
+        env["TOPOMATCH_CACHE_DIR"] = os.path.abspath(cache_dir)
     proc = subprocess.Popen(
         [sys.executable, os.path.abspath(__file__), "--worker", "--data", data, "--method", method],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
@@ -84,6 +90,7 @@ def main() -> None:
     ap.add_argument("--targets", default=_TRAINING, help="comma-separated TOPKIDS shapes matched from kid00")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--warmup", help="a shape each version matches once, unmeasured, before the targets")
+    ap.add_argument("--cache-dir", help="the disk cache of eigenbases for both workers (topomatch bench's default: $XDG_CACHE_HOME/topomatch)")
     ap.add_argument("--json", help="write every time and digest here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -95,7 +102,7 @@ def main() -> None:
     if not args.baseline or not os.path.isdir(os.path.join(args.baseline, "topomatch")):
         raise SystemExit(f"bench_versions: --baseline must be a src folder holding topomatch/, got {args.baseline!r}")
     targets = [t for t in args.targets.split(",") if t]
-    procs = {"baseline": _start(args.data, args.method, args.baseline), "this": _start(args.data, args.method, None)}
+    procs = {v: _start(args.data, args.method, path, args.cache_dir) for v, path in (("baseline", args.baseline), ("this", None))}
     runs: dict[str, dict[str, list[tuple[float, str]]]] = {k: {} for k in procs}
 
     def ask(version: str, name: str) -> tuple[float, str]:
