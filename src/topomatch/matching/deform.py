@@ -2017,7 +2017,8 @@ class DeformMatcher(Matcher):
         # spectral, extrinsic, others. The registrations' small dense solves lose to BLAS
         # threads competing with ours. With a ``pool`` from the caller the verifications
         # are only submitted (their futures returned): :meth:`register` makes the next
-        # run's hypotheses while the pool verifies this one's.
+        # run's hypotheses while the pool verifies this one's; with ``deferred`` the
+        # spectral ones wait until every run's extrinsic ones are submitted.
         if pool is not None:
             go_on_pool = None if race is None else (lambda rs: [pool.submit(go_on, r) for r in rs])
             with one_blas_thread():
