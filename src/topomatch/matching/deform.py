@@ -2019,36 +2019,30 @@ class DeformMatcher(Matcher):
         # are only submitted (their futures returned): :meth:`register` makes the next
         # run's hypotheses while the pool verifies this one's; with ``deferred`` the
         # spectral ones wait until every run's extrinsic ones are submitted.
-        if pool is not None:
-            go_on_pool = None if race is None else (lambda rs: [pool.submit(go_on, r) for r in rs])
-            with one_blas_thread():
-                later = [(h, pool.submit(verify, h)) for h in extrinsic]
-            hyps_out: list[Hypothesis] = []
-            futures: list[Any] = []
+        own = pool is None  # a pool of this call's own: its results are waited for here
+        hyps_out: list[Hypothesis] = []
+        futures: list[Any] = []
+        with one_blas_thread(), (ThreadPoolExecutor(max_workers=n) if own else nullcontext(pool)) as ex:
+            later = [(h, ex.submit(verify, h)) for h in extrinsic]
 
             def rest() -> None:
                 with one_blas_thread():
                     if target_basis is not None:  # waits without the GIL while the pool verifies
                         target_basis.result()
-                    first = [(h, pool.submit(verify, h)) for h in spectral]
-                    last = [(h, pool.submit(verify, h)) for h in others]
+                    first = [(h, ex.submit(verify, h)) for h in spectral]
+                    last = [(h, ex.submit(verify, h)) for h in others]
                 done = first + later + last
                 hyps_out[:] = [h for h, _ in done]
                 futures[:] = [f for _, f in done]
 
-            if deferred is None:
+            if deferred is None or own:
                 rest()
             else:
                 deferred.append(rest)
-            return hyps_out, futures, go_on_pool
-        with one_blas_thread(), ThreadPoolExecutor(max_workers=n) as ex:
-            later = [(h, ex.submit(verify, h)) for h in extrinsic]
-            if target_basis is not None:  # waits without the GIL while the pool verifies
-                target_basis.result()
-            first = [(h, ex.submit(verify, h)) for h in spectral]
-            last = [(h, ex.submit(verify, h)) for h in others]
-            done = first + later + last
-            return [h for h, _ in done], [f.result() for _, f in done], here
+            if own:
+                return hyps_out, [f.result() for f in futures], here
+        go_on_pool = None if race is None else (lambda rs: [ex.submit(go_on, r) for r in rs])
+        return hyps_out, futures, go_on_pool
 
     def _refine(
         self,
