@@ -56,7 +56,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import hashlib
 import logging
 import os
 import threading
@@ -76,6 +75,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from topomatch._blas import one_blas_thread
+from topomatch._cache import array_hash
 from topomatch.deform.graph import DeformationGraph, build_deformation_graph
 from topomatch.deform.kdtree import PointTree
 from topomatch.deform.register import (
@@ -373,8 +373,7 @@ def spectral_hypotheses(
     e2 = s2.basis_evecs[samples_2]
     m2 = s2.mass[samples_2] * (s2.mass.sum() / s2.mass[samples_2].sum())
     # the hypotheses themselves depend on the samples too: kept per pair, setting and samples
-    sampled = (hashlib.sha1(np.ascontiguousarray(samples_1, dtype=np.int64).tobytes()).hexdigest(),
-               hashlib.sha1(np.ascontiguousarray(samples_2, dtype=np.int64).tobytes()).hexdigest(), step)
+    sampled = (array_hash(np.asarray(samples_1, dtype=np.int64), np.asarray(samples_2, dtype=np.int64)), step)
     for kind, k, rev in settings:
         h_key = (key, kind, k, rev, weights, sampled)
         kept = cache.get(h_key) if cache is not None else None
