@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from topomatch._kernels import dense_blocks, position_terms
+from topomatch._kernels import _horn_rotation, banded_blocks, dense_blocks, position_terms
 from topomatch.datasets.toy import icosphere
 from topomatch.deform import _reference as ref
+from topomatch.deform import register
 from topomatch.deform.graph import build_deformation_graph
 from topomatch.deform.register import DataPairs, GraphDeformation, _weighted_pairs
 
@@ -180,3 +181,101 @@ def test_dense_system_equals_the_fancy_indexed_one(deformation, blocks_of):
     dense_blocks(P.rows, P.cols, np.array([i for i, _ in keys]), np.array([j for _, j in keys]), np.array(list(blocks.values())), m, 1e-3, H)
     np.testing.assert_array_equal(H, want)
     assert np.count_nonzero(np.tril(H, -1)) == 0  # the upper triangle only, as LAPACK reads it
+
+
+def test_banded_system_is_the_dense_one_reordered(deformation):
+    rng = np.random.default_rng(6)
+    P = deformation._pattern
+    m = len(P.diagonal)
+    keys = [(i, j) for i in range(3) for j in range(i, 3)]
+    blocks = {ij: rng.standard_normal(P.n_entries) for ij in keys}
+    bi, bj, values = np.array([i for i, _ in keys]), np.array([j for _, j in keys]), np.array(list(blocks.values()))
+    H = np.zeros((3 * m, 3 * m), order="F")
+    dense_blocks(P.rows, P.cols, bi, bj, values, m, 1e-3, H)
+    full = np.triu(H) + np.triu(H, 1).T
+    position, old_of_new, kd = P.band(3)
+    assert kd < 3 * m - 1  # a band narrower than the matrix
+    AB = np.zeros((kd + 1, 3 * m), order="F")
+    banded_blocks(P.rows, P.cols, bi, bj, values, m, 1e-3, position, AB)
+    reordered = full[np.ix_(old_of_new, old_of_new)]
+    i, j = np.triu_indices(3 * m)
+    inside = j - i <= kd
+    np.testing.assert_array_equal(AB[kd + i[inside] - j[inside], j[inside]], reordered[i[inside], j[inside]])
+    assert np.count_nonzero(reordered[i[~inside], j[~inside]]) == 0  # nothing outside the band
+
+
+def test_banded_solve_equals_the_dense_one(deformation, monkeypatch):
+    monkeypatch.setattr(register, "BANDED_SOLVE", True)
+    monkeypatch.setattr(register, "_BAND_MAX", 1.0)  # this small graph's band is half its size
+    rng = np.random.default_rng(7)
+    P = deformation._pattern
+    m = len(P.diagonal)
+    keys = [(i, j) for i in range(3) for j in range(i, 3)]
+    # a positive definite system on the pattern: the Gram blocks of random pairs plus a Laplacian
+    D = deformation
+    pairs = _pairs(D, rng, 2)
+    w = rng.uniform(0.1, 1.0, (len(pairs.source), 6))
+    w[:, [0, 3, 5]] += 2.0
+    G = P.grams(pairs.source, w)
+    Lg = P.laplacian(rng.uniform(0.5, 1.0, 2 * len(D.graph.links)))
+    blocks = {ij: G[:, k] + (Lg if ij[0] == ij[1] else 0.0) for k, ij in enumerate(keys)}
+    rhs, x0 = rng.standard_normal(3 * m), rng.standard_normal(3 * m)
+    called = []
+    solve = register.banded_cholesky_factor_solve
+    monkeypatch.setattr(register, "banded_cholesky_factor_solve", lambda AB, B: called.append(AB.shape) or solve(AB, B))
+    got = P.solve(blocks, rhs, x0)
+    assert called
+    eps = 1e-8 * float(np.concatenate([blocks[i, i][P.diagonal] for i in range(3)]).mean())
+    H = ref.dense_system(blocks, P.rows, P.cols, m, eps)
+    want = np.linalg.solve(np.triu(H) + np.triu(H, 1).T, rhs + eps * x0)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-10 * np.abs(want).max())
+
+
+def test_horn_rotation_is_the_svd_rotation():
+    rng = np.random.default_rng(8)
+    N, V, got = np.empty((4, 4)), np.empty((4, 4)), np.empty((3, 3))
+    for _ in range(200):
+        S = rng.standard_normal((3, 3)) * 10.0 ** rng.uniform(-4, 3)
+        U, _, Vt = np.linalg.svd(S)
+        if np.linalg.det(Vt.T @ U.T) < 0:
+            Vt[2] *= -1
+        want = Vt.T @ U.T  # the rotation maximising tr(R S)
+        _horn_rotation(S.ravel(order="F").copy(), N, V, got)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got @ got.T, np.eye(3), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_quaternion_rotation_step_equals_the_svd_one(deformation, seed, monkeypatch):
+    rng = np.random.default_rng(seed)
+    D = deformation
+    _moved(D, rng)
+    pairs = _pairs(D, rng, 2)
+    start = D.rotations.copy()
+    D.update_rotations(pairs, data_weight=0.8)
+    want = D.rotations.copy()
+    monkeypatch.setattr(register, "QUATERNION_ROTATIONS", True)
+    D.rotations = start
+    D.update_rotations(pairs, data_weight=0.8)
+    np.testing.assert_allclose(D.rotations, want, rtol=0, atol=1e-9)
+    _rest(D)
+
+
+def test_banded_position_step_equals_the_dense_one(deformation, monkeypatch):
+    rng = np.random.default_rng(12)
+    D = deformation
+    _moved(D, rng)
+    pairs = _pairs(D, rng, 2)
+    start = D.positions.copy()
+    D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=0.7)
+    want = D.positions.copy()
+    monkeypatch.setattr(register, "BANDED_SOLVE", True)
+    monkeypatch.setattr(register, "_BAND_MAX", 1.0)
+    called = []
+    solve = register.banded_cholesky_factor_solve
+    monkeypatch.setattr(register, "banded_cholesky_factor_solve", lambda AB, B: called.append(AB.shape) or solve(AB, B))
+    D.positions = start
+    D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=0.7)
+    assert called  # the band path was taken
+    np.testing.assert_allclose(D.positions, want, rtol=0, atol=1e-9)
+    _rest(D)

@@ -33,6 +33,8 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from topomatch._kernels import (
+    banded_blocks,
+    banded_cholesky_factor_solve,
     dense_blocks,
     gram_entries,
     position_terms,
@@ -116,6 +118,22 @@ _NO_PAIRS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
 _DENSE_SOLVE_MAX = 600
 """Linear systems of the position step up to this size are factorised densely (LAPACK);
 larger ones with the sparse Cholesky factorisation (CHOLMOD)."""
+
+BANDED_SOLVE = False
+"""Candidate, off (session 61's rule in docs/flagship.md): solve the coupled (point-to-plane)
+systems up to ``_DENSE_SOLVE_MAX`` by LAPACK's banded Cholesky (``dpbtrf`` / ``dpbtrs``) in
+a reverse Cuthill-McKee order of the graph's nodes, each node's coordinates side by side
+(:meth:`_GramPattern.band`), instead of the dense factorisation: the same solutions to
+rounding (#198: about half the time per solve)."""
+
+_BAND_MAX = 0.5
+"""With :data:`BANDED_SOLVE`, the band path is taken when the half-bandwidth is below this
+fraction of the system's size (the TOPKIDS coarse graphs: about 0.38)."""
+
+QUATERNION_ROTATIONS = False
+"""Candidate, off (session 61's rule): the rotation step's rotations by Horn's quaternion
+instead of LAPACK's 3 x 3 SVDs (:func:`topomatch._kernels.rotation_step`): the same
+rotations to about 1e-13 (#196)."""
 
 _PCG_RTOL = 1e-10
 """Relative residual at which the conjugate gradients of the position step stop."""
@@ -231,6 +249,7 @@ class _GramPattern:
     _layouts: dict[tuple[tuple[int, int], ...], _Layout] = field(
         default_factory=dict, repr=False, compare=False
     )
+    _bands: dict[int, tuple[IndexArray, IndexArray, int]] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def build(cls, skin: sparse.csr_matrix, links: IndexArray) -> _GramPattern:
@@ -313,6 +332,34 @@ class _GramPattern:
         n_values = len(flat) - size
         return _Layout(indptr, (uniq % size).astype(np.int32), slots[:n_values], slots[n_values:], picks)
 
+    def band(self, d: int) -> tuple[IndexArray, IndexArray, int]:
+        """Band order of the ``d m x d m`` block system: each node's ``d`` unknowns side by side, the nodes in reverse Cuthill-McKee order.
+
+        Returns
+        -------
+        position : ndarray, shape (m,)
+            Place of each node in the order.
+        old_of_new : ndarray, shape (d m,)
+            Index (``c m + k`` for coordinate ``c`` of node ``k``) of each reordered unknown.
+        kd : int
+            Half-bandwidth of the reordered matrix.
+        """
+        hit = self._bands.get(d)
+        if hit is not None:
+            return hit
+        from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+        m = len(self.diagonal)
+        adjacency = sparse.csr_matrix((np.ones(len(self.rows)), (self.rows, self.cols)), shape=(m, m))
+        order = reverse_cuthill_mckee((adjacency + adjacency.T).tocsr(), symmetric_mode=True)
+        position = np.empty(m, dtype=np.int64)
+        position[order] = np.arange(m)
+        kd = d * int(np.abs(position[self.rows] - position[self.cols]).max(initial=0)) + d - 1
+        old_of_new = np.empty(d * m, dtype=np.int64)
+        for c in range(d):
+            old_of_new[d * position + c] = c * m + np.arange(m)
+        return self._bands.setdefault(d, (position, old_of_new, kd))
+
     def grams(self, source: IndexArray, weights: FloatArray) -> FloatArray:
         """Upper triangles of ``P^T diag(w_k) P`` for ``P = skin[source]``, shape (n_entries, k).
 
@@ -377,6 +424,24 @@ class _GramPattern:
         size = d * m
         eps = 1e-8 * float(np.concatenate([blocks[i, i][self.diagonal] if (i, i) in blocks else np.zeros(m) for i in range(d)]).mean())
         r, c = self.rows, self.cols
+        if BANDED_SOLVE and size <= _DENSE_SOLVE_MAX and d > 1:
+            position, old_of_new, kd = self.band(d)
+            if kd < _BAND_MAX * size:
+                # banded Cholesky (LAPACK dpbtrf / dpbtrs) in the band order, without the GIL
+                keys = list(blocks)
+                AB = np.zeros((kd + 1, size), order="F")
+                banded_blocks(
+                    r, c, np.array([i for i, _ in keys], dtype=np.int64), np.array([j for _, j in keys], dtype=np.int64),
+                    np.array([blocks[ij] for ij in keys], dtype=np.float64), m, eps, position, AB,
+                )
+                b = rhs + eps * x0
+                B = np.asfortranarray(b.reshape(size, -1)[old_of_new])
+                info = banded_cholesky_factor_solve(AB, B)
+                if info > 0:
+                    raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
+                x = np.empty_like(B)
+                x[old_of_new] = B
+                return x.reshape(b.shape)
         if size <= _DENSE_SOLVE_MAX:
             H = np.zeros((size, size), order="F")  # LAPACK's order: factorised in place
             # the upper triangle of H holds each diagonal block's upper triangle and the
@@ -551,7 +616,7 @@ class GraphDeformation:
         rotation_step(
             self.positions, self.graph.rest, self._dir_a, self._dir_b, self._dir_rest, wl, self.vertices,
             skin.indptr, skin.indices, skin.data, source, np.ascontiguousarray(c, dtype=np.float64), points,
-            self.rotations, out,
+            self.rotations, out, QUATERNION_ROTATIONS,
         )
         self.rotations = out
 
