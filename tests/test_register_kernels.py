@@ -183,6 +183,17 @@ def test_dense_system_equals_the_fancy_indexed_one(deformation, blocks_of):
     assert np.count_nonzero(np.tril(H, -1)) == 0  # the upper triangle only, as LAPACK reads it
 
 
+@pytest.fixture
+def banded(monkeypatch) -> list[tuple[int, int]]:
+    """The banded solve switched on for any band (this small graph's is half its size); the shapes it was called with."""
+    monkeypatch.setattr(register, "BANDED_SOLVE", True)
+    monkeypatch.setattr(register, "_BAND_MAX", 1.0)
+    called: list[tuple[int, int]] = []
+    solve = register.banded_cholesky_solve
+    monkeypatch.setattr(register, "banded_cholesky_solve", lambda ab, b: called.append(ab.shape) or solve(ab, b))
+    return called
+
+
 def test_banded_system_is_the_dense_one_reordered(deformation):
     rng = np.random.default_rng(6)
     P = deformation._pattern
@@ -196,7 +207,7 @@ def test_banded_system_is_the_dense_one_reordered(deformation):
     position, old_of_new, kd = P.band(3)
     assert kd < 3 * m - 1  # a band narrower than the matrix
     AB = np.zeros((kd + 1, 3 * m), order="F")
-    banded_blocks(P.rows, P.cols, bi, bj, values, m, 1e-3, position, AB)
+    banded_blocks(P.rows, P.cols, bi, bj, values, 3, 1e-3, position, AB)
     reordered = full[np.ix_(old_of_new, old_of_new)]
     i, j = np.triu_indices(3 * m)
     inside = j - i <= kd
@@ -204,9 +215,7 @@ def test_banded_system_is_the_dense_one_reordered(deformation):
     assert np.count_nonzero(reordered[i[~inside], j[~inside]]) == 0  # nothing outside the band
 
 
-def test_banded_solve_equals_the_dense_one(deformation, monkeypatch):
-    monkeypatch.setattr(register, "BANDED_SOLVE", True)
-    monkeypatch.setattr(register, "_BAND_MAX", 1.0)  # this small graph's band is half its size
+def test_banded_solve_equals_the_dense_one(deformation, banded):
     rng = np.random.default_rng(7)
     P = deformation._pattern
     m = len(P.diagonal)
@@ -220,11 +229,8 @@ def test_banded_solve_equals_the_dense_one(deformation, monkeypatch):
     Lg = P.laplacian(rng.uniform(0.5, 1.0, 2 * len(D.graph.links)))
     blocks = {ij: G[:, k] + (Lg if ij[0] == ij[1] else 0.0) for k, ij in enumerate(keys)}
     rhs, x0 = rng.standard_normal(3 * m), rng.standard_normal(3 * m)
-    called = []
-    solve = register.banded_cholesky_factor_solve
-    monkeypatch.setattr(register, "banded_cholesky_factor_solve", lambda AB, B: called.append(AB.shape) or solve(AB, B))
     got = P.solve(blocks, rhs, x0)
-    assert called
+    assert banded  # the band path was taken
     eps = 1e-8 * float(np.concatenate([blocks[i, i][P.diagonal] for i in range(3)]).mean())
     H = ref.dense_system(blocks, P.rows, P.cols, m, eps)
     want = np.linalg.solve(np.triu(H) + np.triu(H, 1).T, rhs + eps * x0)
@@ -261,7 +267,7 @@ def test_quaternion_rotation_step_equals_the_svd_one(deformation, seed, monkeypa
     _rest(D)
 
 
-def test_banded_position_step_equals_the_dense_one(deformation, monkeypatch):
+def test_banded_position_step_equals_the_dense_one(deformation, request):
     rng = np.random.default_rng(12)
     D = deformation
     _moved(D, rng)
@@ -269,13 +275,9 @@ def test_banded_position_step_equals_the_dense_one(deformation, monkeypatch):
     start = D.positions.copy()
     D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=0.7)
     want = D.positions.copy()
-    monkeypatch.setattr(register, "BANDED_SOLVE", True)
-    monkeypatch.setattr(register, "_BAND_MAX", 1.0)
-    called = []
-    solve = register.banded_cholesky_factor_solve
-    monkeypatch.setattr(register, "banded_cholesky_factor_solve", lambda AB, B: called.append(AB.shape) or solve(AB, B))
+    banded = request.getfixturevalue("banded")  # from here on, the band path
     D.positions = start
     D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=0.7)
-    assert called  # the band path was taken
+    assert banded  # the band path was taken
     np.testing.assert_allclose(D.positions, want, rtol=0, atol=1e-9)
     _rest(D)

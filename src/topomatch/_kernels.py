@@ -586,19 +586,15 @@ def _band_put(AB, kd, a, b, v):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False)
-def banded_blocks(rows, cols, block_i, block_j, values, m, eps, position, AB):  # pragma: no cover - compiled
-    """:func:`dense_blocks`'s matrix reordered and written in LAPACK's upper band storage ``AB`` (zeroed, (kd + 1, d m)).
+def banded_blocks(rows, cols, block_i, block_j, values, d, eps, position, AB):  # pragma: no cover - compiled
+    """:func:`dense_blocks`'s ``d x d`` block matrix reordered and written in LAPACK's upper band storage ``AB`` (zeroed, (kd + 1, d m)).
 
     Unknown ``(coordinate c, node k)`` (index ``c m + k`` in :func:`dense_blocks`) becomes
-    ``3 position[k] + c``: each node's coordinates side by side, the nodes in the order
+    ``d position[k] + c``: each node's coordinates side by side, the nodes in the order
     ``position``. Every entry of the symmetric matrix is written once, in the upper triangle
     of the new order (later blocks overwrite earlier ones alike).
     """
     kd = AB.shape[0] - 1
-    d = 0
-    for k in range(block_i.shape[0]):
-        if block_j[k] + 1 > d:
-            d = block_j[k] + 1
     for k in range(block_i.shape[0]):
         bi = block_i[k]
         bj = block_j[k]

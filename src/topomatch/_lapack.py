@@ -31,7 +31,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from topomatch.typing import FloatArray
 
-__all__ = ["cholesky_solve", "register_lapack_symbol"]
+__all__ = ["banded_cholesky_solve", "cholesky_solve", "register_lapack_symbol"]
 
 
 def _lapack_address(name: str) -> int:
@@ -104,9 +104,34 @@ def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
     if fn is None:  # unusual SciPy builds
         return cho_solve(cho_factor(A, lower=False, overwrite_a=True, check_finite=False), b, check_finite=False)
     B = np.array(b.reshape(len(b), -1), dtype=np.float64, order="F")
-    info = fn(A, B)
+    _check_info(fn(A, B))
+    return B.reshape(b.shape)
+
+
+def banded_cholesky_solve(ab: FloatArray, b: FloatArray) -> FloatArray:
+    """Solve ``a x = b`` for a symmetric positive definite band matrix in LAPACK's upper band storage, without the GIL.
+
+    LAPACK's ``dpbtrf`` then ``dpbtrs`` (:func:`topomatch._kernels.banded_cholesky_factor_solve`).
+
+    Parameters
+    ----------
+    ab : ndarray, shape (kd + 1, n)
+        ``ab[kd + i - j, j] = a[i, j]`` for ``max(0, j - kd) <= i <= j``; Fortran-ordered
+        float64, overwritten by the factor.
+    b : ndarray, shape (n,) or (n, r)
+
+    Returns and raises as :func:`cholesky_solve`.
+    """
+    from topomatch._kernels import banded_cholesky_factor_solve
+
+    B = np.array(np.reshape(b, (len(b), -1)), dtype=np.float64, order="F")
+    _check_info(banded_cholesky_factor_solve(ab, B))
+    return B.reshape(np.shape(b))
+
+
+def _check_info(info: int) -> None:
+    """Raise for a Cholesky routine's nonzero LAPACK ``info``."""
     if info > 0:
         raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
     if info < 0:  # pragma: no cover - the arguments are built here
         raise ValueError(f"LAPACK: illegal value in the {-info}-th argument")
-    return B.reshape(b.shape)

@@ -34,7 +34,6 @@ from scipy.spatial import cKDTree
 
 from topomatch._kernels import (
     banded_blocks,
-    banded_cholesky_factor_solve,
     dense_blocks,
     gram_entries,
     position_terms,
@@ -42,7 +41,7 @@ from topomatch._kernels import (
     rotation_step,
     skinned_vertices,
 )
-from topomatch._lapack import cholesky_solve
+from topomatch._lapack import banded_cholesky_solve, cholesky_solve
 from topomatch.deform.graph import DeformationGraph
 from topomatch.deform.kdtree import JointTree, PointTree
 from topomatch.mesh.geometry import vertex_normals
@@ -424,35 +423,27 @@ class _GramPattern:
         size = d * m
         eps = 1e-8 * float(np.concatenate([blocks[i, i][self.diagonal] if (i, i) in blocks else np.zeros(m) for i in range(d)]).mean())
         r, c = self.rows, self.cols
-        if BANDED_SOLVE and size <= _DENSE_SOLVE_MAX and d > 1:
-            position, old_of_new, kd = self.band(d)
-            if kd < _BAND_MAX * size:
-                # banded Cholesky (LAPACK dpbtrf / dpbtrs) in the band order, without the GIL
-                keys = list(blocks)
-                AB = np.zeros((kd + 1, size), order="F")
-                banded_blocks(
-                    r, c, np.array([i for i, _ in keys], dtype=np.int64), np.array([j for _, j in keys], dtype=np.int64),
-                    np.array([blocks[ij] for ij in keys], dtype=np.float64), m, eps, position, AB,
-                )
-                b = rhs + eps * x0
-                B = np.asfortranarray(b.reshape(size, -1)[old_of_new])
-                info = banded_cholesky_factor_solve(AB, B)
-                if info > 0:
-                    raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
-                x = np.empty_like(B)
-                x[old_of_new] = B
-                return x.reshape(b.shape)
         if size <= _DENSE_SOLVE_MAX:
+            keys = list(blocks)
+            block_i = np.array([i for i, _ in keys], dtype=np.int64)
+            block_j = np.array([j for _, j in keys], dtype=np.int64)
+            values = np.array([blocks[ij] for ij in keys], dtype=np.float64)
+            b = rhs + eps * x0
+            if BANDED_SOLVE and d > 1:
+                position, old_of_new, kd = self.band(d)
+                if kd < _BAND_MAX * size:
+                    # banded Cholesky (LAPACK dpbtrf / dpbtrs) in the band order, without the GIL
+                    AB = np.zeros((kd + 1, size), order="F")
+                    banded_blocks(r, c, block_i, block_j, values, d, eps, position, AB)
+                    x = np.empty_like(b)
+                    x[old_of_new] = banded_cholesky_solve(AB, b[old_of_new])
+                    return x
             H = np.zeros((size, size), order="F")  # LAPACK's order: factorised in place
             # the upper triangle of H holds each diagonal block's upper triangle and the
             # whole of each off-diagonal block (compiled: topomatch._kernels.dense_blocks)
-            keys = list(blocks)
-            dense_blocks(
-                r, c, np.array([i for i, _ in keys], dtype=np.int64), np.array([j for _, j in keys], dtype=np.int64),
-                np.array([blocks[ij] for ij in keys], dtype=np.float64), m, eps, H,
-            )
+            dense_blocks(r, c, block_i, block_j, values, m, eps, H)
             # cho_solve(cho_factor(H)) bit for bit, without holding the GIL (threads solve side by side)
-            return cholesky_solve(H, rhs + eps * x0)
+            return cholesky_solve(H, b)
         keys = tuple(sorted(blocks))
         layout = self._layouts.get(keys)
         if layout is None:
