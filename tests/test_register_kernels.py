@@ -258,6 +258,7 @@ def test_quaternion_rotation_step_equals_the_svd_one(deformation, seed, monkeypa
     _moved(D, rng)
     pairs = _pairs(D, rng, 2)
     start = D.rotations.copy()
+    monkeypatch.setattr(register, "QUATERNION_ROTATIONS", False)  # LAPACK's SVDs
     D.update_rotations(pairs, data_weight=0.8)
     want = D.rotations.copy()
     monkeypatch.setattr(register, "QUATERNION_ROTATIONS", True)
@@ -267,12 +268,13 @@ def test_quaternion_rotation_step_equals_the_svd_one(deformation, seed, monkeypa
     _rest(D)
 
 
-def test_banded_position_step_equals_the_dense_one(deformation, request):
+def test_banded_position_step_equals_the_dense_one(deformation, request, monkeypatch):
     rng = np.random.default_rng(12)
     D = deformation
     _moved(D, rng)
     pairs = _pairs(D, rng, 2)
     start = D.positions.copy()
+    monkeypatch.setattr(register, "BANDED_SOLVE", False)  # the dense factorisation
     D.update_positions(pairs, alpha=0.5, mu_point=0.1, mu_plane=0.7)
     want = D.positions.copy()
     banded = request.getfixturevalue("banded")  # from here on, the band path

@@ -201,7 +201,8 @@ def rotation_step(
       (``R = V U^T``, ``V``'s last column negated when ``det < 0``), the previous rotation
       kept where the trace of ``|S|`` is below 1e-300. With ``quaternion``, the same
       rotation by Horn's quaternion instead (:func:`_horn_rotation`: equal to about
-      1e-13, in about 0.4 of the SVD's time; a candidate, not the default, session 61).
+      1e-13, in about 0.4 of the SVD's time; what the library passes since session 62,
+      :data:`topomatch.deform.register.QUATERNION_ROTATIONS`).
 
     ``source`` of length zero means no data term. ``c`` holds the pairs' weights already
     multiplied by the data weight. The caller passes ``out`` as the transpose of a

@@ -118,21 +118,22 @@ _DENSE_SOLVE_MAX = 600
 """Linear systems of the position step up to this size are factorised densely (LAPACK);
 larger ones with the sparse Cholesky factorisation (CHOLMOD)."""
 
-BANDED_SOLVE = False
-"""Candidate, off (session 61's rule in docs/flagship.md): solve the coupled (point-to-plane)
-systems up to ``_DENSE_SOLVE_MAX`` by LAPACK's banded Cholesky (``dpbtrf`` / ``dpbtrs``) in
-a reverse Cuthill-McKee order of the graph's nodes, each node's coordinates side by side
-(:meth:`_GramPattern.band`), instead of the dense factorisation: the same solutions to
-rounding (#198: about half the time per solve)."""
+BANDED_SOLVE = True
+"""Solve the coupled (point-to-plane) systems up to ``_DENSE_SOLVE_MAX`` by LAPACK's banded
+Cholesky (``dpbtrf`` / ``dpbtrs``) in a reverse Cuthill-McKee order of the graph's nodes,
+each node's coordinates side by side (:meth:`_GramPattern.band`), instead of the dense
+factorisation: the same solutions to rounding (#198: about half the time per solve). On
+since session 62 (session 61's rule in docs/flagship.md, #199, #200); ``False`` gives the
+maps of sessions up to 61 bit for bit (with :data:`QUATERNION_ROTATIONS` ``False``)."""
 
 _BAND_MAX = 0.5
 """With :data:`BANDED_SOLVE`, the band path is taken when the half-bandwidth is below this
 fraction of the system's size (the TOPKIDS coarse graphs: about 0.38)."""
 
-QUATERNION_ROTATIONS = False
-"""Candidate, off (session 61's rule): the rotation step's rotations by Horn's quaternion
-instead of LAPACK's 3 x 3 SVDs (:func:`topomatch._kernels.rotation_step`): the same
-rotations to about 1e-13 (#196)."""
+QUATERNION_ROTATIONS = True
+"""The rotation step's rotations by Horn's quaternion instead of LAPACK's 3 x 3 SVDs
+(:func:`topomatch._kernels.rotation_step`): the same rotations to about 1e-13 (#196). On
+since session 62 (session 61's rule, with :data:`BANDED_SOLVE`); ``False`` takes the SVDs."""
 
 _PCG_RTOL = 1e-10
 """Relative residual at which the conjugate gradients of the position step stop."""
