@@ -65,3 +65,22 @@ def test_cholesky_solve_falls_back_to_scipy_with_the_same_answers(monkeypatch):
     compiled = cholesky_solve(H.copy(), b)
     monkeypatch.setattr(lapack, "_compiled", lambda: None)  # as where SciPy's LAPACK table is not reachable
     np.testing.assert_array_equal(lapack.cholesky_solve(H.copy(), b), compiled)
+
+
+def test_banded_cholesky_solve_equals_scipy_and_falls_back_to_it(monkeypatch):
+    import topomatch._lapack as lapack
+
+    n, kd = 60, 7
+    H = _spd(n, 11)
+    H[np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > kd] = 0.0  # a band matrix ...
+    H += n * np.eye(n)  # ... still positive definite
+    ab = np.zeros((kd + 1, n), order="F")
+    for j in range(n):
+        for i in range(max(0, j - kd), j + 1):
+            ab[kd + i - j, j] = H[i, j]
+    b = np.random.default_rng(12).standard_normal(n)
+    want = scipy.linalg.cho_solve_banded((scipy.linalg.cholesky_banded(ab.copy(), lower=False), False), b)
+    np.testing.assert_array_equal(lapack.banded_cholesky_solve(ab.copy(order="F"), b), want)
+    np.testing.assert_allclose(want, np.linalg.solve(H, b), rtol=1e-12)
+    monkeypatch.setattr(lapack, "_compiled", lambda name="": None)  # as where SciPy's LAPACK table is not reachable
+    np.testing.assert_array_equal(lapack.banded_cholesky_solve(ab.copy(order="F"), b), want)

@@ -255,9 +255,10 @@ def rotation_step(
     U = np.empty(9)  # column-major, as Vt
     Vt = np.empty(9)
     iwork = np.empty(24, np.int32)
-    query = np.empty(1)
-    _dgesdd(jobz.ctypes, three.ctypes, three.ctypes, M.ctypes, three.ctypes, sv.ctypes, U.ctypes, three.ctypes, Vt.ctypes,
-            three.ctypes, query.ctypes, lwork.ctypes, iwork.ctypes, info.ctypes)
+    query = np.zeros(1)
+    if not quaternion:  # the workspace query only for the SVDs
+        _dgesdd(jobz.ctypes, three.ctypes, three.ctypes, M.ctypes, three.ctypes, sv.ctypes, U.ctypes, three.ctypes, Vt.ctypes,
+                three.ctypes, query.ctypes, lwork.ctypes, iwork.ctypes, info.ctypes)
     lwork[0] = np.int32(query[0])
     work = np.empty(max(1, lwork[0]))
     N = np.empty((4, 4))  # Horn's matrix and its eigenvectors (quaternion)

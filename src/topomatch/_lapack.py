@@ -10,8 +10,10 @@ numba function that releases the GIL (:func:`topomatch._kernels.cholesky_factor_
 the same routine on the same Fortran-ordered matrix, hence the same bits as
 ``cho_solve(cho_factor(a, lower=False), b)``.
 
-Where the LAPACK entry points cannot be found (an unusual SciPy build),
-:func:`cholesky_solve` falls back to SciPy's functions, with the same results.
+:func:`banded_cholesky_solve` does the same for band matrices (``dpbtrf`` then ``dpbtrs``,
+the routines of SciPy's ``cholesky_banded`` and ``cho_solve_banded``). Where the LAPACK
+entry points cannot be found (an unusual SciPy build), both fall back to SciPy's
+functions, with the same results.
 
 :func:`register_lapack_symbol` gives numba kernels a LAPACK routine by name, so that they
 are cached on disk: that solve, and the registration's rotation step
@@ -27,7 +29,7 @@ import functools
 from collections.abc import Callable
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import cho_factor, cho_solve, cho_solve_banded, cholesky_banded
 
 from topomatch.typing import FloatArray
 
@@ -66,13 +68,13 @@ def register_lapack_symbol(symbol: str, name: str) -> None:
 
 
 @functools.cache
-def _compiled() -> Callable[[FloatArray, FloatArray], int] | None:
-    """The compiled factorise-and-solve (:func:`topomatch._kernels.cholesky_factor_solve`), or ``None`` when LAPACK's entry points are not reachable."""
+def _compiled(name: str = "cholesky_factor_solve") -> Callable[[FloatArray, FloatArray], int] | None:
+    """A compiled factorise-and-solve of :mod:`topomatch._kernels` (``cholesky_factor_solve`` or ``banded_cholesky_factor_solve``), or ``None`` when LAPACK's entry points are not reachable."""
     try:
-        from topomatch._kernels import cholesky_factor_solve
+        from topomatch import _kernels
     except Exception:  # pragma: no cover - unusual SciPy builds
         return None
-    return cholesky_factor_solve  # type: ignore[no-any-return]
+    return getattr(_kernels, name)  # type: ignore[no-any-return]
 
 
 def cholesky_solve(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -120,12 +122,15 @@ def banded_cholesky_solve(ab: FloatArray, b: FloatArray) -> FloatArray:
         float64, overwritten by the factor.
     b : ndarray, shape (n,) or (n, r)
 
-    Returns and raises as :func:`cholesky_solve`.
+    Returns and raises as :func:`cholesky_solve` (bit for bit SciPy's ``cho_solve_banded(
+    (cholesky_banded(ab), False), b)``, the same two routines, which it falls back to).
     """
-    from topomatch._kernels import banded_cholesky_factor_solve
-
+    fn = _compiled("banded_cholesky_factor_solve")
+    if fn is None:  # unusual SciPy builds
+        factor = cholesky_banded(ab, overwrite_ab=True, lower=False, check_finite=False)
+        return cho_solve_banded((factor, False), b, check_finite=False)
     B = np.array(np.reshape(b, (len(b), -1)), dtype=np.float64, order="F")
-    _check_info(banded_cholesky_factor_solve(ab, B))
+    _check_info(fn(ab, B))
     return B.reshape(np.shape(b))
 
 
